@@ -1,0 +1,1 @@
+//! Wire types shared by the treemorph server, client and CLI (in progress).

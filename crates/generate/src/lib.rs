@@ -1,0 +1,1 @@
+//! Procedural tree generator (in progress).

@@ -1,0 +1,1 @@
+//! glTF output (in progress).

@@ -1,0 +1,1 @@
+//! treemorph: the service and command-line tool.

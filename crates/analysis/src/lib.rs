@@ -1,0 +1,1 @@
+//! treemorph analysis stage (in progress).

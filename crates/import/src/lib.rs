@@ -1,0 +1,1 @@
+//! treemorph import stage (in progress).

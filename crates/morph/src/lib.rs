@@ -1,0 +1,1 @@
+//! treemorph morph stage (in progress).

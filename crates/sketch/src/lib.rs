@@ -1,0 +1,1 @@
+//! treemorph sketch stage (in progress).

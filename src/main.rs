@@ -1,1 +1,5 @@
-fn main() {}
+//! The `treemorph` command: see `treemorph --help`.
+
+fn main() -> std::process::ExitCode {
+    treemorph::cli::main()
+}

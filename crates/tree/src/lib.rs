@@ -45,7 +45,9 @@
 //! to the leaf's **anchor** (where the petiole meets the bark), width,
 //! height, an orientation quaternion and a material. In the leaf's local
 //! frame the blade spans `x ∈ [-width/2, width/2]`, `y ∈ [0, height]` (base
-//! to tip) and faces `+z`; texture `v = 0` is the base of the blade.
+//! to tip) and faces `+z`. Leaf images are drawn upright: the blade's base is
+//! the image's bottom row and its tip the top row (in glTF texture
+//! coordinates, where `v = 0` is the top row, the base is at `v = 1`).
 
 mod bounds;
 pub mod frame;

@@ -1,0 +1,117 @@
+//! [`AnalysisOptions`]: the thresholds of the hybrid ordering, the grouping,
+//! the lobe clustering and the lobe shapes.
+
+use crate::error::AnalysisError;
+use crate::hull::HullKind;
+use crate::lobe::LobeClustering;
+
+/// Thresholds of the analysis. Every default recovers the structure the
+/// `treemorph-generate` presets are built with.
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct AnalysisOptions {
+    /// θ of Eq. 1, in degrees (default 10): a branching node is a symmetric
+    /// (Weibull) fork when the standard deviation of its children's
+    /// branching angles is at most this…
+    pub weibull_angle: f32,
+    /// …and r_t of Eq. 1, relative (default 0.1): the standard deviation of
+    /// the children's radii divided by their mean radius is at most this.
+    /// Relative so that it means the same on a trunk and on a twig.
+    pub weibull_radius: f32,
+    /// θ of Eq. 3, in degrees (default 30): a two-chain group is opposite
+    /// when its mean divergence angle is within this of 180°.
+    pub opposite_tolerance: f32,
+    /// Lateral chains of one parent chain join the current chain group while
+    /// their growth locations lie within a tolerance of the group's first
+    /// member: the larger of this many parent radii at that junction
+    /// (default 0.5)…
+    pub group_tolerance_radii: f32,
+    /// …and this fraction of the parent branch entering that junction
+    /// (default 0.75). Real skeletons rarely put a whorl on one node; a
+    /// fraction of the internode before the group tolerates members spread
+    /// over up to half an internode while keeping laterals one internode
+    /// apart in separate groups.
+    pub group_tolerance_segment: f32,
+    /// How leaves are assigned to inner lobes (default
+    /// [`LobeClustering::NearestBranch`]; the paper's literal centre-based
+    /// clustering is [`LobeClustering::CentreKMeans`], which the next four
+    /// fields tune).
+    pub clustering: LobeClustering,
+    /// Initial per-cluster distance threshold of the lobe clustering, as a
+    /// fraction of the cluster's radius (default 0.35, paper §4.2).
+    pub cluster_initial_threshold: f32,
+    /// Growth of that threshold per iteration, as a fraction of the
+    /// cluster's radius added each iteration (default 0.105).
+    pub cluster_threshold_step: f32,
+    /// Iterations after which leaves no cluster has reached go to the
+    /// nearest cluster centre (default 64, when the threshold is ~7 radii).
+    pub cluster_max_iterations: u32,
+    /// Radius of a chain-tip cluster as a fraction of the chain's length
+    /// (default 0.1, paper §4.2).
+    pub tip_radius: f32,
+    /// Shape of IL, OL and GOL hulls (default [`HullKind::Convex`]).
+    pub hull: HullKind,
+}
+
+impl Default for AnalysisOptions {
+    fn default() -> AnalysisOptions {
+        AnalysisOptions {
+            weibull_angle: 10.0,
+            weibull_radius: 0.1,
+            opposite_tolerance: 30.0,
+            group_tolerance_radii: 0.5,
+            group_tolerance_segment: 0.75,
+            clustering: LobeClustering::NearestBranch,
+            cluster_initial_threshold: 0.35,
+            cluster_threshold_step: 0.105,
+            cluster_max_iterations: 64,
+            tip_radius: 0.1,
+            hull: HullKind::Convex,
+        }
+    }
+}
+
+impl AnalysisOptions {
+    /// Checks every field; the error names the first bad one.
+    pub fn validate(&self) -> Result<(), AnalysisError> {
+        let nonneg = [
+            ("weibull_angle", self.weibull_angle),
+            ("weibull_radius", self.weibull_radius),
+            ("opposite_tolerance", self.opposite_tolerance),
+            ("group_tolerance_radii", self.group_tolerance_radii),
+            ("group_tolerance_segment", self.group_tolerance_segment),
+            ("tip_radius", self.tip_radius),
+        ];
+        for (name, v) in nonneg {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(AnalysisError::InvalidOption {
+                    option: name,
+                    reason: format!("must be a finite number ≥ 0, got {v}"),
+                });
+            }
+        }
+        let positive = [
+            ("cluster_initial_threshold", self.cluster_initial_threshold),
+            ("cluster_threshold_step", self.cluster_threshold_step),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(AnalysisError::InvalidOption {
+                    option: name,
+                    reason: format!("must be a finite number > 0, got {v}"),
+                });
+            }
+        }
+        if let HullKind::Radial { rings, segments } = self.hull
+            && (rings == 0 || segments < 3)
+        {
+            return Err(AnalysisError::InvalidOption {
+                option: "hull",
+                reason: format!(
+                    "a radial hull needs ≥ 1 ring and ≥ 3 segments, got {rings} and {segments}"
+                ),
+            });
+        }
+        Ok(())
+    }
+}

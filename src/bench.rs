@@ -1,0 +1,341 @@
+//! The benchmark table printed by `treemorph bench` and `cargo bench`.
+//!
+//! Each stage contributes named cases; a case runs its closure repeatedly
+//! (at least 3 times, then until about a second has passed or 30 runs) and
+//! reports the median and fastest run. Inputs are generated trees, so the
+//! figures are reproducible on any machine. Timings belong here and never in
+//! tests.
+
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use treemorph_generate::{GenerateOptions, Preset};
+use treemorph_tree::Tree;
+
+use crate::cli::Failure;
+
+/// Arguments of `treemorph bench`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Only run cases whose stage contains this text.
+    #[arg(long)]
+    filter: Option<String>,
+    /// Run each case once (for smoke tests; the figures are noisy).
+    #[arg(long)]
+    quick: bool,
+}
+
+/// One row of the table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// The stage measured (e.g. `generate`).
+    pub stage: String,
+    /// What it ran on (e.g. `eucalyptus seed 1`).
+    pub input: String,
+    /// Size of the input (e.g. `20,011 branches`).
+    pub size: String,
+    /// Median wall time of one run, milliseconds.
+    pub median_ms: f64,
+    /// Fastest run, milliseconds.
+    pub min_ms: f64,
+    /// Runs measured.
+    pub runs: usize,
+    /// Work per second at the median, with its unit.
+    pub throughput: String,
+    /// The target for this row, milliseconds, when there is one.
+    pub target_ms: Option<f64>,
+}
+
+/// Times `f`: a few runs, then more until about a second has passed.
+pub fn measure(quick: bool, mut f: impl FnMut()) -> (f64, f64, usize) {
+    let mut times = Vec::new();
+    let budget = Duration::from_secs(1);
+    let start = Instant::now();
+    loop {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        let enough = if quick {
+            true
+        } else {
+            times.len() >= 3 && (start.elapsed() > budget || times.len() >= 30)
+        };
+        if enough {
+            break;
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    (times[times.len() / 2], times[0], times.len())
+}
+
+fn per_second(count: usize, unit: &str, ms: f64) -> String {
+    let rate = count as f64 / (ms / 1e3);
+    if rate >= 1e6 {
+        format!("{:.2} M {unit}/s", rate / 1e6)
+    } else if rate >= 1e3 {
+        format!("{:.1} k {unit}/s", rate / 1e3)
+    } else {
+        format!("{rate:.1} {unit}/s")
+    }
+}
+
+fn thousands(n: usize) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+fn tree(preset: Preset, seed: u64, size: u32) -> Tree {
+    treemorph_generate::generate(&GenerateOptions::new(preset, seed).with_size(size))
+        .expect("bench sizes are within the generator's range")
+}
+
+/// Rows of the foundation: generating and exporting trees.
+fn foundation_rows(quick: bool, rows: &mut Vec<Row>) {
+    for (size, target) in [(1_000u32, None), (20_000, Some(200.0))] {
+        let preset = Preset::Eucalyptus;
+        let sample = tree(preset, 1, size);
+        let branches = sample.skeleton().branch_count();
+        let input = format!("{} seed 1", preset.name());
+        let (median, min, runs) = measure(quick, || {
+            std::hint::black_box(tree(preset, 1, size));
+        });
+        rows.push(Row {
+            stage: "generate".into(),
+            input: input.clone(),
+            size: format!("{} branches", thousands(branches)),
+            median_ms: median,
+            min_ms: min,
+            runs,
+            throughput: per_second(branches, "branches", median),
+            target_ms: None,
+        });
+        let options = treemorph_gltf::ExportOptions::default();
+        let (median, min, runs) = measure(quick, || {
+            std::hint::black_box(treemorph_gltf::export_glb(&sample, &options).expect("export"));
+        });
+        rows.push(Row {
+            stage: "export glb".into(),
+            input: input.clone(),
+            size: format!("{} branches", thousands(branches)),
+            median_ms: median,
+            min_ms: min,
+            runs,
+            throughput: per_second(branches, "branches", median),
+            target_ms: None,
+        });
+        let (median, min, runs) = measure(quick, || {
+            let t = tree(preset, 1, size);
+            std::hint::black_box(treemorph_gltf::export_glb(&t, &options).expect("export"));
+        });
+        rows.push(Row {
+            stage: "generate + export glb".into(),
+            input,
+            size: format!("{} branches", thousands(branches)),
+            median_ms: median,
+            min_ms: min,
+            runs,
+            throughput: per_second(branches, "branches", median),
+            target_ms: target,
+        });
+    }
+}
+
+/// A tree with every `k`-th leaf kept, so leaf counts match the papers'
+/// inputs (their trees carry about one leaf per chain; ours carry several).
+fn thinned(tree: &Tree, keep_leaves: usize) -> Tree {
+    let mut parts = tree.clone().into_parts();
+    let k = parts.leaves.len().div_ceil(keep_leaves.max(1)).max(1);
+    parts.leaves = parts.leaves.into_iter().step_by(k).collect();
+    Tree::new(parts, &treemorph_tree::Limits::default()).expect("a subset of valid leaves is valid")
+}
+
+/// Rows of the skeleton-lobe analysis at the morphing paper's sizes
+/// (Table 2: 4,507 chains / 4,436 leaves and 20,195 chains / 5,919 leaves).
+fn analysis_rows(quick: bool, rows: &mut Vec<Row>) {
+    use treemorph_analysis::{Analysis, AnalysisOptions};
+    let options = AnalysisOptions::default();
+    for (preset, size, leaves, target) in [
+        (Preset::Eucalyptus, 15_000u32, None, None),
+        (Preset::Eucalyptus, 15_000, Some(4_436), Some(50.0)),
+        (Preset::Conifer, 15_000, Some(4_436), Some(50.0)),
+        (Preset::Eucalyptus, 65_000, Some(5_919), Some(200.0)),
+        (Preset::Dichotomous, 46_000, Some(5_919), Some(200.0)),
+    ] {
+        let full = tree(preset, 1, size);
+        let input_tree = match leaves {
+            Some(n) => thinned(&full, n),
+            None => full,
+        };
+        let analysis = Analysis::of(&input_tree, &options).expect("generated trees analyse");
+        let chains = analysis.chains().len();
+        let (median, min, runs) = measure(quick, || {
+            std::hint::black_box(Analysis::of(&input_tree, &options).expect("analysis"));
+        });
+        rows.push(Row {
+            stage: "analysis".into(),
+            input: format!(
+                "{} seed 1{}",
+                preset.name(),
+                if leaves.is_some() {
+                    ", leaves thinned"
+                } else {
+                    ""
+                }
+            ),
+            size: format!(
+                "{} chains, {} leaves",
+                thousands(chains),
+                thousands(input_tree.leaves().len())
+            ),
+            median_ms: median,
+            min_ms: min,
+            runs,
+            throughput: per_second(chains, "chains", median),
+            target_ms: target,
+        });
+    }
+}
+
+/// A group of cases and the stage names its rows use.
+type Group = (fn(bool, &mut Vec<Row>), &'static [&'static str]);
+
+const GROUPS: &[Group] = &[
+    (
+        foundation_rows,
+        &["generate", "export glb", "generate + export glb"],
+    ),
+    (analysis_rows, &["analysis"]),
+];
+
+/// Runs every case whose stage contains `filter` (all without one).
+pub fn rows(quick: bool, filter: Option<&str>) -> Vec<Row> {
+    let wanted = |stage: &str| filter.is_none_or(|f| stage.contains(f));
+    let mut rows = Vec::new();
+    for (run, stages) in GROUPS {
+        if stages.iter().any(|s| wanted(s)) {
+            run(quick, &mut rows);
+        }
+    }
+    rows.retain(|r| wanted(&r.stage));
+    rows
+}
+
+/// Formats rows as an aligned text table.
+pub fn table(rows: &[Row]) -> String {
+    let header = [
+        "stage",
+        "input",
+        "size",
+        "median",
+        "min",
+        "runs",
+        "throughput",
+        "target",
+    ];
+    let cells: Vec<[String; 8]> = rows
+        .iter()
+        .map(|r| {
+            [
+                r.stage.clone(),
+                r.input.clone(),
+                r.size.clone(),
+                format!("{:.2} ms", r.median_ms),
+                format!("{:.2} ms", r.min_ms),
+                r.runs.to_string(),
+                r.throughput.clone(),
+                match r.target_ms {
+                    Some(t) if r.median_ms <= t => format!("≤ {t} ms ✓"),
+                    Some(t) => format!("≤ {t} ms ✗"),
+                    None => String::new(),
+                },
+            ]
+        })
+        .collect();
+    let mut widths = header.map(|h| h.chars().count());
+    for row in &cells {
+        for (w, c) in widths.iter_mut().zip(row) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cols: &[String]| -> String {
+        let mut s = String::new();
+        for (i, (c, w)) in cols.iter().zip(widths).enumerate() {
+            let pad = w - c.chars().count();
+            // Numbers right-aligned, text left-aligned.
+            if (3..=5).contains(&i) {
+                s.push_str(&" ".repeat(pad));
+                s.push_str(c);
+            } else {
+                s.push_str(c);
+                s.push_str(&" ".repeat(pad));
+            }
+            s.push_str("  ");
+        }
+        s.trim_end().to_owned() + "\n"
+    };
+    let mut out = line(&header.map(String::from));
+    out.push_str(&line(&widths.map(|w| "-".repeat(w))));
+    for row in &cells {
+        out.push_str(&line(row));
+    }
+    out
+}
+
+pub(crate) fn run(args: &Args) -> Result<(), Failure> {
+    if cfg!(debug_assertions) {
+        eprintln!(
+            "warning: this is a debug build; run `cargo run --release -- bench` for real figures"
+        );
+    }
+    let rows = rows(args.quick, args.filter.as_deref());
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        print!("{}", table(&rows));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thousands_separates_groups() {
+        assert_eq!(thousands(0), "0");
+        assert_eq!(thousands(999), "999");
+        assert_eq!(thousands(1000), "1,000");
+        assert_eq!(thousands(20_195), "20,195");
+        assert_eq!(thousands(1_234_567), "1,234,567");
+    }
+
+    #[test]
+    fn table_aligns_columns_and_marks_targets() {
+        let row = |median_ms, target_ms| Row {
+            stage: "generate".into(),
+            input: "maple".into(),
+            size: "10 branches".into(),
+            median_ms,
+            min_ms: 1.0,
+            runs: 3,
+            throughput: "1 branches/s".into(),
+            target_ms,
+        };
+        let text = table(&[row(5.0, Some(10.0)), row(50.0, Some(10.0)), row(1.0, None)]);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 5);
+        assert!(lines[2].ends_with("≤ 10 ms ✓"), "{text}");
+        assert!(lines[3].ends_with("≤ 10 ms ✗"), "{text}");
+        assert_eq!(lines[0].find("input"), lines[2].find("maple"));
+    }
+}

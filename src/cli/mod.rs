@@ -1,0 +1,93 @@
+//! The `treemorph` command line.
+//!
+//! Exit codes are part of the interface scripts rely on:
+//! `0` success, `1` an operation failed, `2` the command line was wrong,
+//! `3` an input file is invalid or unreadable.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod generate;
+mod inspect;
+mod progress;
+
+/// Exit code: an operation failed.
+pub const EXIT_FAILURE: u8 = 1;
+/// Exit code: the command line was wrong (clap's own code).
+pub const EXIT_USAGE: u8 = 2;
+/// Exit code: an input file is invalid or unreadable.
+pub const EXIT_INVALID_INPUT: u8 = 3;
+
+/// treemorph animates leafy 3D trees: it morphs one tree into another and
+/// grows a tree into a crown shape sketched from a camera.
+#[derive(Debug, Parser)]
+#[command(
+    name = "treemorph",
+    version,
+    about,
+    long_about = "treemorph animates leafy 3D trees: it morphs one tree into a topologically \
+different one, and animates a tree into a crown shape sketched from a camera.\n\n\
+Start with `treemorph generate --list`, then e.g. \
+`treemorph generate --preset maple --seed 1 -o maple.glb` and `treemorph inspect maple.glb`.",
+    propagate_version = true
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Generate a procedural leafy tree (GLB or JSON by the output's extension).
+    Generate(generate::Args),
+    /// Print counts, bounds, height and depth of a tree file (GLB, glTF or JSON).
+    Inspect(inspect::Args),
+    /// Run the benchmarks and print a table of named figures.
+    Bench(crate::bench::Args),
+}
+
+/// A command's failure: what to print and which exit code to use.
+#[derive(Debug)]
+pub struct Failure {
+    /// The exit code.
+    pub code: u8,
+    /// The error, printed with its causes.
+    pub error: anyhow::Error,
+}
+
+impl Failure {
+    /// An input file is invalid or unreadable.
+    pub fn invalid_input(error: impl Into<anyhow::Error>) -> Failure {
+        Failure {
+            code: EXIT_INVALID_INPUT,
+            error: error.into(),
+        }
+    }
+}
+
+impl<E: Into<anyhow::Error>> From<E> for Failure {
+    fn from(error: E) -> Failure {
+        Failure {
+            code: EXIT_FAILURE,
+            error: error.into(),
+        }
+    }
+}
+
+/// Parses the command line, runs the command and returns the exit code.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Generate(args) => generate::run(&args),
+        Command::Inspect(args) => inspect::run(&args),
+        Command::Bench(args) => crate::bench::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(failure) => {
+            eprintln!("error: {:#}", failure.error);
+            ExitCode::from(failure.code)
+        }
+    }
+}

@@ -1,0 +1,939 @@
+//! Building a [`MorphPlan`]: union chains from the correspondence, their
+//! samples, the side data of both inputs at every sample, the slerp
+//! coefficients a frame evaluates, and the leaves' local placements.
+
+use std::ops::Range;
+
+use glam::{Quat, Vec3};
+use rayon::prelude::*;
+use treemorph_analysis::{Analysis, ChainId};
+use treemorph_tree::{FrameLeafTopology, FrameTopology, NodeId, Strands};
+
+use crate::correspondence::{Correspondence, Input, LeafMatch, Operation};
+use crate::error::MorphError;
+use crate::morpher::{fraction, locate};
+use crate::options::{LeafMorph, MorphOptions};
+use crate::plan::{
+    ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NO_PARENT, NodeOrigin, Sample,
+    UnionChain,
+};
+
+/// The chain data the plan reads, copied from the analysis in one
+/// sequential pass into concatenated arrays: the build visits chains in
+/// union order, and the analysis keeps each chain in a large struct with
+/// five separate heap vectors, which made cache misses the build's main
+/// cost.
+struct ChainArrays {
+    offsets: Vec<u32>,
+    points: Vec<Vec3>,
+    radii: Vec<f32>,
+    frames: Vec<Quat>,
+    params: Vec<f32>,
+    nodes: Vec<NodeId>,
+    growth: Vec<f32>,
+    parent: Vec<Option<ChainId>>,
+}
+
+/// One chain of a [`ChainArrays`].
+#[derive(Clone, Copy)]
+struct ChainView<'a> {
+    points: &'a [Vec3],
+    radii: &'a [f32],
+    frames: &'a [Quat],
+    params: &'a [f32],
+    nodes: &'a [NodeId],
+    growth: f32,
+}
+
+impl ChainArrays {
+    fn of(analysis: &Analysis) -> ChainArrays {
+        let chains = analysis.chains();
+        let total: usize = chains.iter().map(|c| c.points.len()).sum();
+        let mut a = ChainArrays {
+            offsets: Vec::with_capacity(chains.len() + 1),
+            points: Vec::with_capacity(total),
+            radii: Vec::with_capacity(total),
+            frames: Vec::with_capacity(total),
+            params: Vec::with_capacity(total),
+            nodes: Vec::with_capacity(total),
+            growth: chains.iter().map(|c| c.growth_location).collect(),
+            parent: chains.iter().map(|c| c.parent).collect(),
+        };
+        a.offsets.push(0);
+        for c in chains {
+            a.points.extend_from_slice(&c.points);
+            a.radii.extend_from_slice(&c.radii);
+            a.frames.extend_from_slice(&c.frames);
+            a.nodes.extend_from_slice(&c.nodes);
+            a.params
+                .extend((0..c.points.len()).map(|i| c.param_of_point(i)));
+            a.offsets.push(a.points.len() as u32);
+        }
+        a
+    }
+
+    fn get(&self, c: ChainId) -> ChainView<'_> {
+        let r = self.offsets[c as usize] as usize..self.offsets[c as usize + 1] as usize;
+        ChainView {
+            points: &self.points[r.clone()],
+            radii: &self.radii[r.clone()],
+            frames: &self.frames[r.clone()],
+            params: &self.params[r.clone()],
+            nodes: &self.nodes[r],
+            growth: self.growth[c as usize],
+        }
+    }
+}
+
+/// Side data of one union sample.
+#[derive(Clone, Copy)]
+struct SideSample {
+    x: Vec3,
+    r: f32,
+    h: Quat,
+}
+
+/// Samples of one side of a union chain: at every union parameter, the
+/// chain's own node when there is one (so inputs are reproduced exactly),
+/// else the point on the polyline segment it falls in, with the frame
+/// nlerped between the segment's node frames (any continuous frame will
+/// do: leaves and children are expressed relative to these very frames).
+fn side_samples(chain: ChainView, u: &[f32], origin: &[Option<u32>], out: &mut Vec<SideSample>) {
+    out.clear();
+    let mut k = 0usize; // the node at or before the current sample
+    for (&p, o) in u.iter().zip(origin) {
+        if let Some(o) = o {
+            k = *o as usize;
+            out.push(SideSample {
+                x: chain.points[k],
+                r: chain.radii[k],
+                h: chain.frames[k],
+            });
+            continue;
+        }
+        let k1 = (k + 1).min(chain.points.len() - 1);
+        let (a, b) = (chain.params[k], chain.params[k1]);
+        let f = if b > a {
+            ((p - a) / (b - a)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        // The first segment starts at the junction, whose radius is the
+        // parent's; the chain's own tube starts at min(r₀, r₁) (as meshers
+        // draw it), so extra samples there taper from that.
+        let r0 = if k == 0 {
+            chain.radii[0].min(chain.radii[1])
+        } else {
+            chain.radii[k]
+        };
+        out.push(SideSample {
+            x: chain.points[k].lerp(chain.points[k1], f),
+            r: r0 + (chain.radii[k1] - r0) * f,
+            h: chain.frames[k].lerp(chain.frames[k1], f),
+        });
+    }
+}
+
+/// Union parameters of a chain: the merge of both sides' node parameters,
+/// with, per sample, the source and target polyline index it reproduces.
+#[derive(Default)]
+struct Params {
+    u: Vec<f32>,
+    origin: [Vec<Option<u32>>; 2],
+}
+
+fn union_params(source: Option<ChainView>, target: Option<ChainView>, out: &mut Params) {
+    out.u.clear();
+    out.origin[0].clear();
+    out.origin[1].clear();
+    let len = |c: Option<ChainView>| c.map_or(0, |c| c.points.len());
+    let (na, nb) = (len(source), len(target));
+    let param = |c: Option<ChainView>, i: usize| c.expect("in range").params[i];
+    let (mut i, mut j) = (0, 0);
+    while i < na || j < nb {
+        let (a, b) = (
+            (i < na).then(|| param(source, i)),
+            (j < nb).then(|| param(target, j)),
+        );
+        let take_a = a.is_some_and(|a| b.is_none_or(|b| a <= b));
+        let take_b = b.is_some_and(|b| a.is_none_or(|a| b <= a));
+        out.u
+            .push(if take_a { a } else { b }.expect("one side remains"));
+        out.origin[0].push(take_a.then_some(i as u32));
+        out.origin[1].push(take_b.then_some(j as u32));
+        i += usize::from(take_a);
+        j += usize::from(take_b);
+    }
+    // Parameters must run from exactly 0 to exactly 1 for `locate`.
+    if let Some(f) = out.u.first_mut() {
+        *f = 0.0;
+    }
+    if let Some(l) = out.u.last_mut() {
+        *l = 1.0;
+    }
+}
+
+/// `a cos(wθ) + a⊥ sin(wθ)` coefficients for unit vectors `a → b`, so
+/// that `w = 1` gives `b`. In f64 with `atan2`: an f32 `acos` near 1 is only
+/// good to ~3e-4 rad, which would show at t = 1.
+fn arc_coefficients(a: Vec3, b: Vec3, hint: Vec3) -> (Vec3, f32) {
+    let (a, b) = (a.as_dvec3(), b.as_dvec3());
+    let c = a.dot(b);
+    let perp = b - a * c;
+    let n = perp.length();
+    if n > 1e-9 {
+        return ((perp / n).as_vec3(), n.atan2(c) as f32);
+    }
+    if c > 0.0 {
+        return (Vec3::ZERO, 0.0);
+    }
+    // Antiparallel: turn through the hint's direction.
+    let hint = hint.as_dvec3();
+    let h = hint - a * hint.dot(a);
+    let perp = if h.length_squared() > 1e-12 {
+        h.normalize()
+    } else {
+        a.any_orthonormal_vector()
+    };
+    (perp.as_vec3(), std::f32::consts::PI)
+}
+
+/// The same for unit quaternions (shortest arc; `b` is negated when needed).
+fn arc_coefficients_q(a: Quat, b: Quat) -> (Quat, f32) {
+    let (a, mut b) = (a.as_dquat(), b.as_dquat());
+    if a.dot(b) < 0.0 {
+        b = -b;
+    }
+    let d = a.dot(b);
+    let perp = b - a * d;
+    let n = perp.length();
+    if n <= 1e-12 {
+        return (Quat::from_xyzw(0.0, 0.0, 0.0, 0.0), 0.0);
+    }
+    ((perp * (1.0 / n)).as_quat(), n.atan2(d) as f32)
+}
+
+/// One side's chain-local data relative to its anchor frame.
+#[derive(Default)]
+struct Local {
+    dirs: Vec<Vec3>,
+    lens: Vec<f32>,
+    frames: Vec<Quat>,
+}
+
+impl Local {
+    fn set(&mut self, samples: &[SideSample], anchor: Quat) {
+        let inv = anchor.inverse();
+        self.frames.clear();
+        self.frames
+            .extend(samples.iter().map(|s| (inv * s.h).normalize()));
+        self.dirs.clear();
+        self.lens.clear();
+        for i in 0..samples.len() {
+            let fallback = self.frames[i] * Vec3::Y;
+            if i + 1 < samples.len() {
+                let d = inv * (samples[i + 1].x - samples[i].x);
+                let len = d.length();
+                self.lens.push(len);
+                self.dirs.push(if len > 1e-12 { d / len } else { fallback });
+            } else {
+                self.lens.push(0.0);
+                self.dirs.push(fallback);
+            }
+        }
+    }
+}
+
+/// A union chain before ordering.
+struct Proto {
+    operation: Operation,
+    source: Option<ChainId>,
+    target: Option<ChainId>,
+    parent: u32,
+}
+
+/// What the plan needs of one input leaf, gathered in one sequential pass
+/// (the leaf loop visits leaves in correspondence order, and scattered
+/// reads from several big arrays cost more than the work).
+struct LeafFacts {
+    inner_lobe: ChainId,
+    param: f32,
+    offset_len: f32,
+    anchor: Vec3,
+    orientation: Quat,
+    width: f32,
+    height: f32,
+    /// Index into the union's leaf materials.
+    material: u32,
+}
+
+fn leaf_facts(input: &Input, material_offset: u32) -> Vec<LeafFacts> {
+    input
+        .tree
+        .leaves()
+        .par_iter()
+        .zip(input.analysis.leaves())
+        .with_min_len(1024)
+        .map(|(leaf, placement)| LeafFacts {
+            inner_lobe: placement.inner_lobe,
+            param: placement.param,
+            offset_len: placement.offset.length(),
+            anchor: input.tree.leaf_anchor(leaf),
+            orientation: leaf.orientation,
+            width: leaf.width,
+            height: leaf.height,
+            material: leaf.material + material_offset,
+        })
+        .collect()
+}
+
+/// The union chain of the pair (source, target), if they are matched.
+fn pair_of(pairs_of: &[Vec<(ChainId, u32)>], source: ChainId, target: ChainId) -> Option<u32> {
+    pairs_of[source as usize]
+        .iter()
+        .find(|p| p.0 == target)
+        .map(|p| p.1)
+}
+
+fn internal(msg: impl Into<String>) -> MorphError {
+    MorphError::Internal(msg.into())
+}
+
+/// Both inputs at one union sample: position and frame of the source (0)
+/// and target (1) polylines (what children and leaves are placed on).
+#[derive(Clone, Copy)]
+struct SideData {
+    x: [Vec3; 2],
+    h: [Quat; 2],
+}
+
+impl Default for SideData {
+    fn default() -> SideData {
+        SideData {
+            x: [Vec3::ZERO; 2],
+            h: [Quat::IDENTITY; 2],
+        }
+    }
+}
+
+impl Default for Sample {
+    fn default() -> Sample {
+        Sample {
+            frame: Quat::IDENTITY,
+            frame_perp: Quat::IDENTITY,
+            dir: Vec3::Y,
+            dir_perp: Vec3::ZERO,
+            theta: 0.0,
+            omega: 0.0,
+            len: [0.0; 2],
+            radius: [0.0; 2],
+        }
+    }
+}
+
+/// [`point_frame`] on one side of built samples, with the same arithmetic,
+/// so the plan and the morpher agree to the last bit.
+fn side_point_frame(
+    u: &[f32],
+    inv_span: &[f32],
+    b: &[SideData],
+    sd: usize,
+    p: f32,
+) -> (Vec3, Quat) {
+    let j = locate(u, p);
+    let f = fraction(u, inv_span, j, p);
+    (
+        b[j].x[sd].lerp(b[j + 1].x[sd], f),
+        b[j].h[sd].lerp(b[j + 1].h[sd], f),
+    )
+}
+
+struct BuildContext<'a> {
+    arrays: &'a [ChainArrays; 2],
+    sample_u: &'a [f32],
+    sample_inv_span: &'a [f32],
+    origins: &'a [Vec<Option<u32>>; 2],
+}
+
+/// Scratch buffers of one build task.
+#[derive(Default)]
+struct Scratch {
+    side: Vec<SideSample>,
+    radii: Vec<[f32; 2]>,
+    locals: [Local; 2],
+}
+
+/// Chains per rayon task in pass 2.
+const BUILD_CHAINS_PER_TASK: usize = 128;
+
+/// Pass 2 for a run of chains of one level whose samples start at `base`:
+/// `done` holds the side data of every earlier sample (the parents'),
+/// `out` and `samples` these chains' side data and samples.
+fn build_chains(
+    cx: &BuildContext,
+    plans: &[ChainPlan],
+    sides: &[[Option<ChainId>; 2]],
+    done: &[SideData],
+    out: &mut [SideData],
+    samples: &mut [Sample],
+    base: usize,
+) -> Result<(), MorphError> {
+    if plans.len() > BUILD_CHAINS_PER_TASK {
+        let mid = plans.len() / 2;
+        let split = plans[mid].first as usize - base;
+        let (lo, hi) = out.split_at_mut(split);
+        let (slo, shi) = samples.split_at_mut(split);
+        let (a, b) = rayon::join(
+            || build_chains(cx, &plans[..mid], &sides[..mid], done, lo, slo, base),
+            || {
+                build_chains(
+                    cx,
+                    &plans[mid..],
+                    &sides[mid..],
+                    done,
+                    hi,
+                    shi,
+                    base + split,
+                )
+            },
+        );
+        return a.and(b);
+    }
+    let mut scratch = Scratch::default();
+    for (c, side) in plans.iter().zip(sides) {
+        let r = c.first as usize - base..c.first as usize - base + c.len as usize;
+        build_chain(
+            cx,
+            c,
+            *side,
+            done,
+            &mut out[r.clone()],
+            &mut samples[r],
+            &mut scratch,
+        )?;
+    }
+    Ok(())
+}
+
+fn build_chain(
+    cx: &BuildContext,
+    c: &ChainPlan,
+    side: [Option<ChainId>; 2],
+    done: &[SideData],
+    out: &mut [SideData],
+    samples: &mut [Sample],
+    scratch: &mut Scratch,
+) -> Result<(), MorphError> {
+    let r = c.first as usize..(c.first + c.len) as usize;
+    let u = &cx.sample_u[r.clone()];
+    let mut has = [false; 2];
+    scratch.radii.clear();
+    scratch.radii.resize(u.len(), [0.0; 2]);
+    for sd in 0..2 {
+        let Some(id) = side[sd] else { continue };
+        let chain = cx.arrays[sd].get(id);
+        side_samples(chain, u, &cx.origins[sd][r.clone()], &mut scratch.side);
+        let anchor = if c.parent == NO_PARENT {
+            Quat::IDENTITY
+        } else {
+            let pr = c.parent_first as usize..(c.parent_first + c.parent_len) as usize;
+            side_point_frame(
+                &cx.sample_u[pr.clone()],
+                &cx.sample_inv_span[pr.clone()],
+                &done[pr],
+                sd,
+                c.p[sd],
+            )
+            .1
+        };
+        scratch.locals[sd].set(&scratch.side, anchor);
+        has[sd] = true;
+        for ((o, x), r) in out.iter_mut().zip(&scratch.side).zip(&mut scratch.radii) {
+            o.x[sd] = x.x;
+            o.h[sd] = x.h;
+            r[sd] = x.r;
+        }
+    }
+    let (a, b) = match has {
+        [true, true] => (&scratch.locals[0], &scratch.locals[1]),
+        [true, false] => (&scratch.locals[0], &scratch.locals[0]),
+        [false, true] => (&scratch.locals[1], &scratch.locals[1]),
+        [false, false] => return Err(internal("a union chain has no side")),
+    };
+    for (j, (o, radius)) in samples.iter_mut().zip(&scratch.radii).enumerate() {
+        let (dir_perp, theta) = arc_coefficients(a.dirs[j], b.dirs[j], a.frames[j] * Vec3::X);
+        let (frame_perp, omega) = arc_coefficients_q(a.frames[j], b.frames[j]);
+        *o = Sample {
+            dir: a.dirs[j],
+            dir_perp,
+            theta,
+            len: [
+                if has[0] { a.lens[j] } else { 0.0 },
+                if has[1] { b.lens[j] } else { 0.0 },
+            ],
+            frame: a.frames[j],
+            frame_perp,
+            omega,
+            radius: [
+                if has[0] { radius[0] } else { 0.0 },
+                if has[1] { radius[1] } else { 0.0 },
+            ],
+        };
+    }
+    Ok(())
+}
+
+pub(crate) fn build(
+    s: &Input,
+    t: &Input,
+    correspondence: Correspondence,
+    options: &MorphOptions,
+    heights: [f32; 2],
+) -> Result<MorphPlan, MorphError> {
+    let (sa, ta) = (s.analysis, t.analysis);
+    const NONE: u32 = u32::MAX;
+
+    let arrays = [ChainArrays::of(sa), ChainArrays::of(ta)];
+    // Union chains: pairs, then wilting and growing chains.
+    let mut protos: Vec<Proto> = Vec::new();
+    // Union chain of each matched pair, per source chain (a handful each).
+    let mut pairs_of: Vec<Vec<(ChainId, u32)>> = vec![Vec::new(); sa.chains().len()];
+    let mut primary_src = vec![NONE; sa.chains().len()];
+    let mut primary_tgt = vec![NONE; ta.chains().len()];
+    for m in &correspondence.chains {
+        let idx = protos.len() as u32;
+        protos.push(Proto {
+            operation: m.operation,
+            source: Some(m.source),
+            target: Some(m.target),
+            parent: NONE,
+        });
+        pairs_of[m.source as usize].push((m.target, idx));
+        let (s_primary, t_primary) = match m.operation {
+            Operation::Split => (m.primary, true),
+            Operation::Merge => (true, m.primary),
+            _ => (true, true),
+        };
+        if s_primary || primary_src[m.source as usize] == NONE {
+            primary_src[m.source as usize] = idx;
+        }
+        if t_primary || primary_tgt[m.target as usize] == NONE {
+            primary_tgt[m.target as usize] = idx;
+        }
+    }
+    for &c in &correspondence.wilting_chains {
+        primary_src[c as usize] = protos.len() as u32;
+        protos.push(Proto {
+            operation: Operation::Wilt,
+            source: Some(c),
+            target: None,
+            parent: NONE,
+        });
+    }
+    for &c in &correspondence.growing_chains {
+        primary_tgt[c as usize] = protos.len() as u32;
+        protos.push(Proto {
+            operation: Operation::Grow,
+            source: None,
+            target: Some(c),
+            parent: NONE,
+        });
+    }
+    if primary_src.contains(&NONE) || primary_tgt.contains(&NONE) {
+        return Err(internal("a chain has no union chain"));
+    }
+    for p in &mut protos {
+        let ps = p.source.and_then(|c| arrays[0].parent[c as usize]);
+        let pt = p.target.and_then(|c| arrays[1].parent[c as usize]);
+        p.parent = match (p.operation, ps, pt) {
+            (Operation::Wilt, Some(ps), _) => primary_src[ps as usize],
+            (Operation::Grow, _, Some(pt)) => primary_tgt[pt as usize],
+            (Operation::Wilt | Operation::Grow, None, None) => NONE,
+            (_, None, None) => NONE,
+            (_, Some(ps), Some(pt)) => pair_of(&pairs_of, ps, pt)
+                .ok_or_else(|| internal("a matched chain's parents are not matched"))?,
+            _ => return Err(internal("a root chain is matched with a non-root chain")),
+        };
+    }
+    // Parent-first order by level (stable within a level).
+    let mut depth = vec![NONE; protos.len()];
+    for i in 0..protos.len() {
+        let mut chain = vec![i];
+        while let Some(&c) = chain.last() {
+            let p = protos[c].parent;
+            if p == NONE {
+                depth[c] = 0;
+                break;
+            }
+            if depth[p as usize] != NONE {
+                depth[c] = depth[p as usize] + 1;
+                break;
+            }
+            if chain.len() > protos.len() {
+                return Err(internal("the union chains form a cycle"));
+            }
+            chain.push(p as usize);
+        }
+        while let Some(c) = chain.pop() {
+            if depth[c] == NONE {
+                let p = protos[c].parent as usize;
+                depth[c] = depth[p] + 1;
+            }
+        }
+    }
+    let mut order: Vec<u32> = (0..protos.len() as u32).collect();
+    order.sort_by_key(|&i| (depth[i as usize], i));
+    let mut rank = vec![0u32; protos.len()];
+    for (r, &i) in order.iter().enumerate() {
+        rank[i as usize] = r as u32;
+    }
+    let remap = |i: u32| if i == NONE { NONE } else { rank[i as usize] };
+    for p in primary_src.iter_mut().chain(primary_tgt.iter_mut()) {
+        *p = remap(*p);
+    }
+    for v in pairs_of.iter_mut().flatten() {
+        v.1 = remap(v.1);
+    }
+
+    // Pass 1, sequential and cheap: sample parameters, node numbering and
+    // chain records, parents first.
+    let mut chain_plans: Vec<ChainPlan> = Vec::with_capacity(protos.len());
+    let mut chains: Vec<UnionChain> = Vec::with_capacity(protos.len());
+    let mut sides: Vec<[Option<ChainId>; 2]> = Vec::with_capacity(protos.len());
+    let bound: usize = protos
+        .iter()
+        .map(|p| {
+            p.source.map_or(0, |c| arrays[0].get(c).points.len())
+                + p.target.map_or(0, |c| arrays[1].get(c).points.len())
+        })
+        .sum();
+    let mut sample_u: Vec<f32> = Vec::with_capacity(bound);
+    let mut sample_inv_span: Vec<f32> = Vec::with_capacity(bound);
+    let mut origins: [Vec<Option<u32>>; 2] = [Vec::with_capacity(bound), Vec::with_capacity(bound)];
+    let mut node_origins = Vec::with_capacity(bound + 1);
+    node_origins.push(NodeOrigin {
+        source: Some(0),
+        target: Some(0),
+    });
+    let mut parents: Vec<Option<NodeId>> = Vec::with_capacity(bound + 1);
+    parents.push(None);
+    let mut params = Params::default();
+    let root = [
+        s.tree.skeleton().node(0).position,
+        t.tree.skeleton().node(0).position,
+    ];
+    for &i in &order {
+        let proto = &protos[i as usize];
+        let cs = proto.source.map(|c| arrays[0].get(c));
+        let ct = proto.target.map(|c| arrays[1].get(c));
+        union_params(cs, ct, &mut params);
+        let (u, os, ot) = (&params.u, &params.origin[0], &params.origin[1]);
+        let first = sample_u.len() as u32;
+        let k = u.len();
+        if first as usize + k + 1 > u32::MAX as usize {
+            return Err(MorphError::TooLarge(format!(
+                "more than {} union nodes",
+                u32::MAX
+            )));
+        }
+        let parent = remap(proto.parent);
+        let parent_plan = (parent != NONE).then(|| chain_plans[parent as usize]);
+        let p = [cs.map_or(0.0, |c| c.growth), ct.map_or(0.0, |c| c.growth)];
+        let p = match proto.operation {
+            Operation::Wilt => [p[0], p[0]],
+            Operation::Grow => [p[1], p[1]],
+            _ => p,
+        };
+        sample_u.extend_from_slice(u);
+        sample_inv_span.extend(u.windows(2).map(|w| {
+            if w[1] > w[0] {
+                1.0 / (w[1] - w[0])
+            } else {
+                0.0
+            }
+        }));
+        sample_inv_span.push(0.0);
+        origins[0].extend_from_slice(os);
+        origins[1].extend_from_slice(ot);
+
+        // Nodes: the junction, then the samples.
+        let node0 = 1 + first;
+        let junction_parent = match parent_plan {
+            None => 0,
+            Some(pp) => {
+                let (f, n) = (pp.first as usize, pp.len as usize);
+                let j = locate(&sample_u[f..f + n], p[0].min(p[1]));
+                1 + pp.first + j as u32
+            }
+        };
+        parents.push(Some(junction_parent));
+        for j in 1..k as u32 {
+            parents.push(Some(node0 + j - 1));
+        }
+        for j in 0..k {
+            node_origins.push(NodeOrigin {
+                source: cs.zip(os[j]).map(|(c, o)| c.nodes[o as usize]),
+                target: ct.zip(ot[j]).map(|(c, o)| c.nodes[o as usize]),
+            });
+        }
+        chain_plans.push(ChainPlan {
+            operation: proto.operation,
+            first,
+            len: k as u32,
+            parent,
+            parent_first: parent_plan.map_or(0, |pp| pp.first),
+            parent_len: parent_plan.map_or(0, |pp| pp.len),
+            p,
+            parent_segments: match parent_plan {
+                None => [0, 0],
+                Some(pp) => {
+                    let pu = &sample_u[pp.first as usize..(pp.first + pp.len) as usize];
+                    let (a, b) = (locate(pu, p[0]) as u32, locate(pu, p[1]) as u32);
+                    [a.min(b), a.max(b)]
+                }
+            },
+            junction_radius: [
+                cs.map_or(0.0, |c| c.radii[0].min(c.radii[1])),
+                ct.map_or(0.0, |c| c.radii[0].min(c.radii[1])),
+            ],
+        });
+        sides.push([proto.source, proto.target]);
+        chains.push(UnionChain {
+            operation: proto.operation,
+            source: proto.source,
+            target: proto.target,
+            parent: (parent != NONE).then_some(parent),
+            level: depth[i as usize],
+            nodes: node0..node0 + k as u32,
+        });
+    }
+    let mut levels: Vec<Range<u32>> = Vec::new();
+    for (i, c) in chains.iter().enumerate() {
+        let l = c.level as usize;
+        if levels.len() <= l {
+            levels.push(i as u32..i as u32);
+        }
+        levels[l].end = i as u32 + 1;
+    }
+
+    // Pass 2, level by level with rayon: each side's samples, the anchor
+    // frame (the parent's frame at the growth location, exactly as the
+    // morpher will compute it) and the slerp coefficients.
+    let mut side_data = vec![SideData::default(); sample_u.len()];
+    let mut samples = vec![Sample::default(); sample_u.len()];
+    let cx = BuildContext {
+        arrays: &arrays,
+        sample_u: &sample_u,
+        sample_inv_span: &sample_inv_span,
+        origins: &origins,
+    };
+    for level in &levels {
+        let r = level.start as usize..level.end as usize;
+        let Some(first) = chain_plans.get(r.start) else {
+            continue;
+        };
+        let last = &chain_plans[r.end - 1];
+        let (a, b) = (first.first as usize, (last.first + last.len) as usize);
+        let (done, rest) = side_data.split_at_mut(a);
+        build_chains(
+            &cx,
+            &chain_plans[r.clone()],
+            &sides[r],
+            done,
+            &mut rest[..b - a],
+            &mut samples[a..b],
+            a,
+        )?;
+    }
+
+    // Leaves, in correspondence order (grouped by star, hence by host).
+    let src_materials = s.tree.materials().leaves.len() as u32;
+    let linear = matches!(options.leaf_morph, LeafMorph::RandomLinear { .. });
+    let facts = [leaf_facts(s, 0), leaf_facts(t, src_materials)];
+    // A leaf relative to a union chain's side: local offset and local
+    // orientation, exactly as the morpher reconstructs them.
+    let place = |sd: usize, leaf: &LeafFacts, host: u32| {
+        let c = &chain_plans[host as usize];
+        let r = c.first as usize..(c.first + c.len) as usize;
+        let (point, frame) = side_point_frame(
+            &sample_u[r.clone()],
+            &sample_inv_span[r.clone()],
+            &side_data[r],
+            sd,
+            leaf.param,
+        );
+        let inv = frame.inverse();
+        (
+            inv * (leaf.anchor - point),
+            (inv * leaf.orientation).normalize(),
+        )
+    };
+    type Planned = (LeafPlan, FrameLeafTopology, [u32; 2], [f32; 2]);
+    let plan_leaf = |m: &LeafMatch| -> Result<Planned, MorphError> {
+        let a = m.source.map(|l| &facts[0][l as usize]);
+        let b = m.target.map(|l| &facts[1][l as usize]);
+        let hosts = match (a, b) {
+            (Some(a), Some(b)) if !linear => {
+                let h = pair_of(&pairs_of, a.inner_lobe, b.inner_lobe)
+                    .ok_or_else(|| internal("matched leaves on unmatched chains"))?;
+                [h, h]
+            }
+            (Some(a), Some(b)) => [
+                primary_src[a.inner_lobe as usize],
+                primary_tgt[b.inner_lobe as usize],
+            ],
+            (Some(a), None) => [primary_src[a.inner_lobe as usize]; 2],
+            (None, Some(b)) => [primary_tgt[b.inner_lobe as usize]; 2],
+            (None, None) => return Err(internal("an empty leaf match")),
+        };
+        // The side that exists stands in for the missing one, at size 0.
+        let (fa, fb) = match (a, b) {
+            (Some(a), Some(b)) => (a, b),
+            (Some(a), None) => (a, a),
+            (None, Some(b)) => (b, b),
+            (None, None) => return Err(internal("an empty leaf match")),
+        };
+        let size = |x: Option<&LeafFacts>| x.map_or([0.0, 0.0], |x| [x.width, x.height]);
+        let (sa_, sb_) = (size(a), size(b));
+        let lens: [f32; 2];
+        let plan = if linear {
+            let (orientation_perp, omega) = arc_coefficients_q(fa.orientation, fb.orientation);
+            lens = [fa.offset_len, fb.offset_len];
+            LeafPlan {
+                mode: LeafMode::Linear,
+                host: hosts[0],
+                param: [fa.param, fb.param],
+                segments: [0, 0],
+                position: [fa.anchor, fb.anchor],
+                orientation: fa.orientation,
+                orientation_perp,
+                omega,
+                width: [sa_[0], sb_[0]],
+                height: [sa_[1], sb_[1]],
+            }
+        } else {
+            let host = hosts[0];
+            let hc = &chain_plans[host as usize];
+            let pa = a.map(|x| place(0, x, host));
+            let pb = b.map(|x| place(1, x, host));
+            let (la, lb) = match (pa, pb) {
+                (Some(x), Some(y)) => (x, y),
+                (Some(x), None) => (x, x),
+                (None, Some(y)) => (y, y),
+                (None, None) => return Err(internal("an empty leaf match")),
+            };
+            let (orientation_perp, omega) = arc_coefficients_q(la.1, lb.1);
+            // A leaf that grows or wilts keeps its place; on a chain that
+            // grows or wilts its offset from the axis scales with the chain.
+            let mut offset = [la.0, lb.0];
+            if hc.operation == Operation::Grow {
+                offset[0] = Vec3::ZERO;
+            }
+            if hc.operation == Operation::Wilt {
+                offset[1] = Vec3::ZERO;
+            }
+            lens = [offset[0].length(), offset[1].length()];
+            let hu = &sample_u[hc.first as usize..(hc.first + hc.len) as usize];
+            let (j0, j1) = (locate(hu, fa.param) as u32, locate(hu, fb.param) as u32);
+            LeafPlan {
+                mode: LeafMode::OnChain,
+                host,
+                param: [fa.param, fb.param],
+                segments: [j0.min(j1), j0.max(j1)],
+                position: offset,
+                orientation: la.1,
+                orientation_perp,
+                omega,
+                width: [sa_[0], sb_[0]],
+                height: [sa_[1], sb_[1]],
+            }
+        };
+        // The branch the leaf rides on: the host's segment holding its
+        // mid-morph parameter.
+        let c = &chain_plans[hosts[0] as usize];
+        let r = c.first as usize..(c.first + c.len) as usize;
+        let mid = match plan.mode {
+            LeafMode::OnChain => 0.5 * (plan.param[0] + plan.param[1]),
+            LeafMode::Linear => plan.param[0],
+        };
+        let j = locate(&sample_u[r], mid);
+        let topology = FrameLeafTopology {
+            node: 1 + c.first + j as u32 + 1,
+            materials: [fa.material, fb.material],
+        };
+        Ok((plan, topology, hosts, lens))
+    };
+    // Filled in place (a vector of tuples would be one more big temporary).
+    let n = correspondence.leaves.len();
+    let mut leaf_plans = vec![
+        LeafPlan {
+            mode: LeafMode::OnChain,
+            host: 0,
+            param: [0.0; 2],
+            segments: [0; 2],
+            position: [Vec3::ZERO; 2],
+            orientation: Quat::IDENTITY,
+            orientation_perp: Quat::IDENTITY,
+            omega: 0.0,
+            width: [0.0; 2],
+            height: [0.0; 2],
+        };
+        n
+    ];
+    let mut leaf_topology = vec![
+        FrameLeafTopology {
+            node: 0,
+            materials: [0; 2],
+        };
+        n
+    ];
+    let mut leaf_hosts = vec![[0u32; 2]; n];
+    let mut offset_lens = vec![[0.0f32; 2]; n];
+    leaf_plans
+        .par_iter_mut()
+        .zip(leaf_topology.par_iter_mut())
+        .zip(leaf_hosts.par_iter_mut())
+        .zip(offset_lens.par_iter_mut())
+        .zip(correspondence.leaves.par_iter())
+        .with_min_len(1024)
+        .try_for_each(|((((p, t), h), l), m)| {
+            (*p, *t, *h, *l) = plan_leaf(m)?;
+            Ok::<(), MorphError>(())
+        })?;
+    let mut leaf_materials = s.tree.materials().leaves.clone();
+    leaf_materials.extend(t.tree.materials().leaves.iter().cloned());
+    let topology = FrameTopology {
+        parents,
+        strands: Strands::from_polylines(chains.iter().map(|c| c.nodes.clone())),
+        leaves: leaf_topology,
+        leaf_materials,
+        bark: [
+            s.tree.materials().bark.clone(),
+            t.tree.materials().bark.clone(),
+        ],
+    };
+    let parallel = topology.node_count() + leaf_plans.len() > options.parallel_threshold;
+    Ok(MorphPlan {
+        topology,
+        correspondence,
+        chains,
+        node_origins,
+        chain_plans,
+        levels,
+        samples,
+        sample_u,
+        sample_inv_span,
+        leaf_plans,
+        leaf_hosts,
+        leaf_offset_len: offset_lens,
+        root,
+        root_radius: [
+            s.tree.skeleton().node(0).radius,
+            t.tree.skeleton().node(0).radius,
+        ],
+        slow_down: options.slow_down,
+        parallel,
+        heights,
+        endpoint: EndpointError::default(),
+    })
+}

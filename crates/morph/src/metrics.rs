@@ -1,0 +1,464 @@
+//! [`FrameMetrics`]: what makes an in-between tree plausible, measured.
+
+use glam::Vec3;
+use serde::Serialize;
+use treemorph_tree::Frame;
+use treemorph_tree::frame::FrameMismatch;
+
+use crate::correspondence::Operation;
+use crate::options::MetricsOptions;
+use crate::plan::{EndpointError, LeafMode, MorphPlan};
+
+/// Measurements of one frame (see the crate docs, *Metrics*).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FrameMetrics {
+    /// The frame's time.
+    pub t: f32,
+    /// Chains whose junction node is farther than ε from their parent
+    /// chain's axis plus its radius there (root chains: from the root
+    /// node). Always 0 for the paper's method.
+    pub floating_branches: u32,
+    /// Leaves whose anchor is farther than their interpolated offset + ε
+    /// from the chain they belong to (for the random-leaf baseline: from
+    /// both the chain they come from and the chain they go to).
+    pub floating_leaves: u32,
+    /// Maximum main-trunk support weight: the heaviest T(OR) over the main
+    /// trunks, over the frame's total weight.
+    pub mtsw: f32,
+    /// Largest displacement of a node or leaf anchor since the previous
+    /// frame measured by the same [`FrameMeter`], over the plan's height (0
+    /// for the first frame).
+    pub max_jump: f32,
+    /// The plan's end-frame error (the same for every frame).
+    pub endpoint_error: EndpointError,
+}
+
+/// Distance from `p` to the polyline through `nodes` and the radius there.
+fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
+    if positions.len() == 1 {
+        return (p.distance(positions[0]), radii[0]);
+    }
+    let mut best = (f32::INFINITY, 0.0);
+    for j in 0..positions.len() - 1 {
+        let (a, b) = (positions[j], positions[j + 1]);
+        let ab = b - a;
+        let len2 = ab.length_squared();
+        let f = if len2 > 0.0 {
+            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d = p.distance_squared(a + ab * f);
+        if d < best.0 {
+            best = (d, radii[j] + (radii[j + 1] - radii[j]) * f);
+        }
+    }
+    (best.0.sqrt(), best.1)
+}
+
+/// Volume over π of a frustum (a segment with linearly varying radius): it
+/// adds up exactly when a segment is subdivided, so resampled chains weigh
+/// what their inputs weigh.
+fn frustum(ra: f64, rb: f64, len: f64) -> f64 {
+    len * (ra * ra + ra * rb + rb * rb) / 3.0
+}
+
+/// Measures frames of one plan; keeps the previous frame for
+/// [`FrameMetrics::max_jump`] and its scratch buffers between calls.
+#[derive(Debug)]
+pub struct FrameMeter<'p> {
+    plan: &'p MorphPlan,
+    options: MetricsOptions,
+    previous: Vec<Vec3>,
+    has_previous: bool,
+    /// Children of each union chain, flattened (`child_offsets`).
+    children: Vec<u32>,
+    child_offsets: Vec<u32>,
+    subtree: Vec<f64>,
+    leaf_weight: Vec<f64>,
+    /// Per union chain: 1 / how many union chains share its source chain,
+    /// and its target chain.
+    chain_share: Vec<[f32; 2]>,
+    /// Per union leaf: the same for its source and target leaf.
+    leaf_share: Vec<[f32; 2]>,
+    /// Root union chains grouped into trunks: split copies of one source
+    /// chain, or merge copies of one target chain, form one group.
+    trunks: Vec<Trunk>,
+    /// Per trunk: its support weight and base radius (scratch).
+    supports: Vec<(f64, f32)>,
+}
+
+/// Root union chains that coincide at one end of the morph.
+#[derive(Clone, Debug)]
+struct Trunk {
+    members: Vec<u32>,
+    /// Whether the members coincide at t = 0 (split copies) or at t = 1
+    /// (merge copies); irrelevant for one member.
+    split: bool,
+}
+
+impl<'p> FrameMeter<'p> {
+    /// A meter for frames of `plan`.
+    pub fn new(plan: &'p MorphPlan, options: &MetricsOptions) -> FrameMeter<'p> {
+        let n = plan.chains().len();
+        let mut counts = vec![0u32; n + 1];
+        for c in plan.chains() {
+            if let Some(p) = c.parent {
+                counts[p as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            counts[i + 1] += counts[i];
+        }
+        let mut fill = counts.clone();
+        let mut children = vec![0u32; counts[n] as usize];
+        for (i, c) in plan.chains().iter().enumerate() {
+            if let Some(p) = c.parent {
+                children[fill[p as usize] as usize] = i as u32;
+                fill[p as usize] += 1;
+            }
+        }
+        let chains = plan.chains();
+        let count = |key: &dyn Fn(usize) -> Option<u32>, len: usize| {
+            let mut m = vec![0u32; len];
+            for i in 0..chains.len() {
+                if let Some(k) = key(i) {
+                    m[k as usize] += 1;
+                }
+            }
+            m
+        };
+        let ns = chains
+            .iter()
+            .filter_map(|c| c.source)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let nt = chains
+            .iter()
+            .filter_map(|c| c.target)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let ms = count(&|i| chains[i].source, ns);
+        let mt = count(&|i| chains[i].target, nt);
+        let chain_share = chains
+            .iter()
+            .map(|c| {
+                [
+                    c.source.map_or(1.0, |s| 1.0 / ms[s as usize] as f32),
+                    c.target.map_or(1.0, |t| 1.0 / mt[t as usize] as f32),
+                ]
+            })
+            .collect();
+        let origins = plan.leaf_origins();
+        let ls = origins
+            .iter()
+            .filter_map(|m| m.source)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let lt = origins
+            .iter()
+            .filter_map(|m| m.target)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let mut mls = vec![0u32; ls];
+        let mut mlt = vec![0u32; lt];
+        for m in origins {
+            if let Some(s) = m.source {
+                mls[s as usize] += 1;
+            }
+            if let Some(t) = m.target {
+                mlt[t as usize] += 1;
+            }
+        }
+        let leaf_share = origins
+            .iter()
+            .map(|m| {
+                [
+                    m.source.map_or(1.0, |s| 1.0 / mls[s as usize] as f32),
+                    m.target.map_or(1.0, |t| 1.0 / mlt[t as usize] as f32),
+                ]
+            })
+            .collect();
+        let mut trunks: Vec<Trunk> = Vec::new();
+        for (i, c) in chains.iter().enumerate() {
+            if c.parent.is_some() {
+                continue;
+            }
+            let found = trunks.iter_mut().find(|g| {
+                let m = &chains[g.members[0] as usize];
+                match c.operation {
+                    Operation::Split => m.operation == Operation::Split && m.source == c.source,
+                    Operation::Merge => m.operation == Operation::Merge && m.target == c.target,
+                    _ => false,
+                }
+            });
+            match found {
+                Some(g) => g.members.push(i as u32),
+                None => trunks.push(Trunk {
+                    members: vec![i as u32],
+                    split: c.operation == Operation::Split,
+                }),
+            }
+        }
+        FrameMeter {
+            plan,
+            options: options.clone(),
+            previous: Vec::new(),
+            has_previous: false,
+            children,
+            child_offsets: counts,
+            subtree: vec![0.0; n],
+            leaf_weight: vec![0.0; n],
+            chain_share,
+            leaf_share,
+            trunks,
+            supports: Vec::new(),
+        }
+    }
+
+    /// Forgets the previous frame (the next `max_jump` is 0).
+    pub fn reset(&mut self) {
+        self.has_previous = false;
+    }
+
+    /// Measures `frame`, which must fit the plan's topology.
+    pub fn measure(&mut self, frame: &Frame) -> Result<FrameMetrics, FrameMismatch> {
+        let plan = self.plan;
+        frame.check(plan.topology())?;
+        let t = frame.t.clamp(0.0, 1.0);
+        let height = plan.height();
+        let eps = self.options.floating_epsilon * height;
+        let pos = &frame.positions;
+        let rad = &frame.radii;
+
+        let mut floating_branches = 0u32;
+        for c in plan.chains() {
+            let junction = pos[c.nodes.start as usize];
+            let floating = match c.parent {
+                None => junction.distance(pos[0]) > eps,
+                Some(p) => {
+                    let r = plan.chains()[p as usize].nodes.clone();
+                    let r = r.start as usize..r.end as usize;
+                    let (d, radius) = to_polyline(junction, &pos[r.clone()], &rad[r]);
+                    d > radius + eps
+                }
+            };
+            floating_branches += u32::from(floating);
+        }
+
+        let mut floating_leaves = 0u32;
+        for ((leaf, len), hosts) in frame
+            .leaves
+            .iter()
+            .zip(&plan.leaf_offset_len)
+            .zip(&plan.leaf_hosts)
+        {
+            let allowed = len[0] + (len[1] - len[0]) * t + eps;
+            let near = hosts.iter().any(|&h| {
+                let r = plan.chains()[h as usize].nodes.clone();
+                let r = r.start as usize..r.end as usize;
+                to_polyline(leaf.anchor, &pos[r.clone()], &rad[r]).0 <= allowed
+            });
+            floating_leaves += u32::from(!near);
+        }
+
+        let mtsw = self.mtsw(frame, t);
+
+        let mut max_jump = 0.0f32;
+        let count = pos.len() + frame.leaves.len();
+        if self.has_previous && self.previous.len() == count {
+            let anchors = frame.leaves.iter().map(|l| l.anchor);
+            for (p, q) in pos.iter().copied().chain(anchors).zip(&self.previous) {
+                max_jump = max_jump.max(p.distance(*q));
+            }
+            max_jump /= height;
+        }
+        self.previous.clear();
+        self.previous.extend(pos.iter().copied());
+        self.previous.extend(frame.leaves.iter().map(|l| l.anchor));
+        self.has_previous = true;
+
+        Ok(FrameMetrics {
+            t: frame.t,
+            floating_branches,
+            floating_leaves,
+            mtsw,
+            max_jump,
+            endpoint_error: plan.endpoint_error(),
+        })
+    }
+
+    /// §7's maximum main-trunk support weight (see the crate docs).
+    fn mtsw(&mut self, frame: &Frame, t: f32) -> f32 {
+        let plan = self.plan;
+        let chains = plan.chains();
+        let wood = self.options.wood_density as f64 * std::f64::consts::PI;
+        let leaf_density = self.options.leaf_area_density as f64;
+        let pos = &frame.positions;
+        let rad = &frame.radii;
+        let share = |s: [f32; 2]| ((1.0 - t) * s[0] + t * s[1]) as f64;
+        let segment = |a: usize, b: usize| {
+            frustum(rad[a] as f64, rad[b] as f64, pos[a].distance(pos[b]) as f64) * wood
+        };
+        self.leaf_weight.fill(0.0);
+        for (i, leaf) in frame.leaves.iter().enumerate() {
+            let host = plan.leaf_hosts[i][usize::from(t >= 0.5)];
+            self.leaf_weight[host as usize] +=
+                leaf_density * leaf.width as f64 * leaf.height as f64 * share(self.leaf_share[i]);
+        }
+        for (i, c) in chains.iter().enumerate() {
+            let r = c.nodes.start as usize..c.nodes.end as usize;
+            let own: f64 = r.clone().zip(r.skip(1)).map(|(a, b)| segment(a, b)).sum();
+            self.subtree[i] = own * share(self.chain_share[i]) + self.leaf_weight[i];
+        }
+        // Children follow their parents, so one backward pass sums subtrees.
+        for i in (0..chains.len()).rev() {
+            if let Some(p) = chains[i].parent {
+                self.subtree[p as usize] += self.subtree[i];
+            }
+        }
+        let total: f64 = (0..chains.len())
+            .filter(|&i| chains[i].parent.is_none())
+            .map(|i| self.subtree[i])
+            .sum();
+        if total <= 0.0 || self.trunks.is_empty() {
+            return 0.0;
+        }
+        // Per trunk: coincident copies count as one trunk at the end where
+        // they coincide and as separate trunks at the other, blended by t.
+        let base_radius = |i: u32| rad[chains[i as usize].nodes.start as usize + 1];
+        let mut supports = std::mem::take(&mut self.supports);
+        supports.clear();
+        for g in &self.trunks {
+            let together = if g.members.len() < 2 {
+                1.0
+            } else if g.split {
+                1.0 - t
+            } else {
+                t
+            };
+            // Coincident copies are one trunk cut at their common OR; apart,
+            // each is cut at its own.
+            let common = g
+                .members
+                .iter()
+                .map(|&i| self.or_of(i as usize, t))
+                .fold(1.0f32, f32::min);
+            let (mut sum, mut max) = (0.0f64, 0.0f64);
+            for &i in &g.members {
+                let own = self.or_of(i as usize, t);
+                let z = own + (common - own) * together;
+                let v = self.t_at(frame, i as usize, z, t);
+                sum += v;
+                max = max.max(v);
+            }
+            let together = together as f64;
+            let radius = g
+                .members
+                .iter()
+                .map(|&i| base_radius(i))
+                .fold(0.0f32, f32::max);
+            supports.push((together * sum + (1.0 - together) * max, radius));
+        }
+        let thickest = (0..supports.len())
+            .max_by(|&a, &b| supports[a].1.total_cmp(&supports[b].1))
+            .expect("a trunk exists");
+        let threshold = self.options.main_trunk_radius_ratio * supports[thickest].1;
+        // Thin root chains (stems still growing) lean on the thickest trunk.
+        let mut best = 0.0f64;
+        let mut carried = 0.0f64;
+        for (k, g) in self.trunks.iter().enumerate() {
+            if k != thickest && supports[k].1 < threshold {
+                carried += g
+                    .members
+                    .iter()
+                    .map(|&i| self.subtree[i as usize])
+                    .sum::<f64>();
+            }
+        }
+        for (k, &(support, radius)) in supports.iter().enumerate() {
+            if k == thickest {
+                best = best.max(support + carried);
+            } else if radius >= threshold {
+                best = best.max(support);
+            }
+        }
+        self.supports = supports;
+        (best / total).clamp(0.0, 1.0) as f32
+    }
+
+    /// OR of union chain `i` at time `t`: the lowest growth location of its
+    /// children (1 when it has none). A growing child's location slides in
+    /// from the tip as it grows (`lerp(1, p, t)`; a wilting one's out,
+    /// `lerp(1, p, 1 − t)`), so OR is continuous in `t` and equals the
+    /// input's OR at both ends.
+    fn or_of(&self, i: usize, t: f32) -> f32 {
+        let chains = self.plan.chains();
+        self.children[self.child_offsets[i] as usize..self.child_offsets[i + 1] as usize]
+            .iter()
+            .map(|&k| {
+                let p = self.plan.growth_at(k as usize, t);
+                let presence = match chains[k as usize].operation {
+                    Operation::Grow => t,
+                    Operation::Wilt => 1.0 - t,
+                    _ => 1.0,
+                };
+                1.0 + (p - 1.0) * presence
+            })
+            .fold(1.0f32, f32::min)
+    }
+
+    /// T(z) of chain `i` at union parameter `z`: everything it supports
+    /// from `z` up (its subtree minus its own wood and leaves below `z`).
+    fn t_at(&self, frame: &Frame, i: usize, z: f32, t: f32) -> f64 {
+        let plan = self.plan;
+        let cp = &plan.chain_plans[i];
+        let u = &plan.sample_u[cp.first as usize..(cp.first + cp.len) as usize];
+        let node0 = plan.chains()[i].nodes.start as usize;
+        let pos = &frame.positions;
+        let rad = &frame.radii;
+        let wood = self.options.wood_density as f64 * std::f64::consts::PI;
+        let s = self.chain_share[i];
+        let share = ((1.0 - t) * s[0] + t * s[1]) as f64;
+        let mut below = 0.0f64;
+        for j in 0..u.len() - 1 {
+            if u[j] >= z {
+                break;
+            }
+            let span = u[j + 1] - u[j];
+            let f = if span > 0.0 {
+                ((z - u[j]) / span).clamp(0.0, 1.0)
+            } else {
+                1.0
+            } as f64;
+            let (a, b) = (node0 + j, node0 + j + 1);
+            let (ra, rb) = (rad[a] as f64, rad[b] as f64);
+            let cut = ra + (rb - ra) * f;
+            below += frustum(ra, cut, f * pos[a].distance(pos[b]) as f64) * wood * share;
+        }
+        let leaf_density = self.options.leaf_area_density as f64;
+        for (k, (leaf, l)) in frame.leaves.iter().zip(&plan.leaf_plans).enumerate() {
+            if l.mode == LeafMode::OnChain && l.host as usize == i {
+                let p = l.param[0] + (l.param[1] - l.param[0]) * t;
+                if p < z {
+                    let s = self.leaf_share[k];
+                    below += leaf_density
+                        * leaf.width as f64
+                        * leaf.height as f64
+                        * ((1.0 - t) * s[0] + t * s[1]) as f64;
+                }
+            }
+        }
+        (self.subtree[i] - below).max(0.0)
+    }
+}
+
+/// Measures one frame on its own (`max_jump` is 0); a [`FrameMeter`]
+/// measures sequences.
+pub fn frame_metrics(
+    plan: &MorphPlan,
+    frame: &Frame,
+    options: &MetricsOptions,
+) -> Result<FrameMetrics, FrameMismatch> {
+    FrameMeter::new(plan, options).measure(frame)
+}

@@ -1,0 +1,364 @@
+//! [`MorphPlan`]: correspondences turned into a union topology and the
+//! per-sample data every frame interpolates.
+
+use std::ops::Range;
+
+use glam::{Quat, Vec3};
+use serde::Serialize;
+use treemorph_analysis::{Analysis, ChainId};
+use treemorph_tree::{Frame, FrameTopology, NodeId, Tree};
+
+use crate::builder::build;
+use crate::correspondence::{Correspondence, Input, LeafMatch, Operation, correspond};
+use crate::error::{MorphError, Side};
+use crate::morpher::Morpher;
+use crate::options::MorphOptions;
+
+/// Parent index of a root chain.
+pub(crate) const NO_PARENT: u32 = u32::MAX;
+
+/// A chain of the union topology: one matched pair (or one copy of a split
+/// or merge), or one growing or wilting chain. Its nodes are a contiguous
+/// range: first its **junction node** (on the parent chain's axis at the
+/// interpolated growth location; at the root for root chains), then one
+/// node per sample.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct UnionChain {
+    /// How the chain goes from source to target.
+    pub operation: Operation,
+    /// The source chain (`None` when it grows).
+    pub source: Option<ChainId>,
+    /// The target chain (`None` when it wilts).
+    pub target: Option<ChainId>,
+    /// The union chain it grows on; `None` for root chains.
+    pub parent: Option<u32>,
+    /// Depth in the union chain tree (root chains: 0).
+    pub level: u32,
+    /// Its nodes: the junction node, then the samples. This is also its
+    /// strand.
+    pub nodes: Range<NodeId>,
+}
+
+/// Which input nodes a union node reproduces exactly at t = 0 and t = 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct NodeOrigin {
+    /// The source node it sits on at t = 0 (`None` for a sample added from
+    /// the target polyline, or a growing chain).
+    pub source: Option<NodeId>,
+    /// The target node it sits on at t = 1.
+    pub target: Option<NodeId>,
+}
+
+/// How far the morph's end frames are from its inputs (see
+/// [`FrameMetrics::endpoint_error`](crate::FrameMetrics)).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct EndpointError {
+    /// The frame at t = 0 against the source tree: the largest difference
+    /// of a node position, a node radius (junction nodes excepted), a leaf
+    /// anchor, width or height, over the source tree's height.
+    pub source: f32,
+    /// The frame at t = 1 against the target tree, over its height.
+    pub target: f32,
+}
+
+/// A union chain as the morpher needs it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ChainPlan {
+    pub operation: Operation,
+    /// First sample (its node is `1 + first`).
+    pub first: u32,
+    /// Number of samples (≥ 2).
+    pub len: u32,
+    /// Parent union chain, or [`NO_PARENT`].
+    pub parent: u32,
+    pub parent_first: u32,
+    pub parent_len: u32,
+    /// Growth location on the parent (union parameter) at t = 0 and 1.
+    pub p: [f32; 2],
+    /// The parent's segments holding `p` at t = 0 and 1, in order.
+    pub parent_segments: [u32; 2],
+    /// Radius of the junction node at t = 0 and 1: the side chain's
+    /// `min(r_junction, r_first_node)`, independent of the resampling.
+    pub junction_radius: [f32; 2],
+}
+
+/// Per-sample data: the segment to the next sample and the frame at the
+/// sample, each in the chain's anchor frame (the parent's frame at the
+/// growth location), precomputed for slerp as `a cos(wθ) + a⊥ sin(wθ)`.
+/// Quaternions first: 80 bytes, no padding.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sample {
+    pub frame: Quat,
+    pub frame_perp: Quat,
+    pub dir: Vec3,
+    pub dir_perp: Vec3,
+    pub theta: f32,
+    pub omega: f32,
+    /// Segment length at t = 0 and 1.
+    pub len: [f32; 2],
+    /// Radius at t = 0 and 1.
+    pub radius: [f32; 2],
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum LeafMode {
+    /// The paper: carried by the host chain.
+    OnChain,
+    /// Baseline: world anchors and orientations interpolated.
+    Linear,
+}
+
+/// What a frame needs of a leaf (kept small: frames stream through it).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LeafPlan {
+    pub mode: LeafMode,
+    /// The union chain carrying the leaf ([`LeafMode::OnChain`]).
+    pub host: u32,
+    /// Parameter along the host at t = 0 and 1.
+    pub param: [f32; 2],
+    /// The host's segments holding `param` at t = 0 and 1, in order.
+    pub segments: [u32; 2],
+    /// [`LeafMode::OnChain`]: the offset from the host's axis in its frame
+    /// at t = 0 and 1 (lerped: it never leaves the bark by more than the
+    /// lerped offset length). [`LeafMode::Linear`]: world anchors.
+    pub position: [Vec3; 2],
+    /// Orientation (relative to the host frame, or world for
+    /// [`LeafMode::Linear`]) precomputed for slerp.
+    pub orientation: Quat,
+    pub orientation_perp: Quat,
+    pub omega: f32,
+    pub width: [f32; 2],
+    pub height: [f32; 2],
+}
+
+/// Everything needed to produce the in-between tree at any t: the
+/// correspondence, the union topology, and per-sample and per-leaf data.
+/// Build it once with [`MorphPlan::new`], then play it with a
+/// [`Morpher`].
+#[derive(Clone, Debug)]
+pub struct MorphPlan {
+    pub(crate) topology: FrameTopology,
+    pub(crate) correspondence: Correspondence,
+    pub(crate) chains: Vec<UnionChain>,
+    pub(crate) node_origins: Vec<NodeOrigin>,
+    pub(crate) chain_plans: Vec<ChainPlan>,
+    pub(crate) levels: Vec<Range<u32>>,
+    pub(crate) samples: Vec<Sample>,
+    pub(crate) sample_u: Vec<f32>,
+    pub(crate) sample_inv_span: Vec<f32>,
+    pub(crate) leaf_plans: Vec<LeafPlan>,
+    /// Per leaf, the union chains it belongs to at t = 0 and 1 (the same
+    /// twice for [`LeafMode::OnChain`]; for metrics).
+    pub(crate) leaf_hosts: Vec<[u32; 2]>,
+    /// Per leaf, its offset length from the axis at t = 0 and 1 (metrics).
+    pub(crate) leaf_offset_len: Vec<[f32; 2]>,
+    pub(crate) root: [Vec3; 2],
+    pub(crate) root_radius: [f32; 2],
+    pub(crate) slow_down: bool,
+    pub(crate) parallel: bool,
+    pub(crate) heights: [f32; 2],
+    pub(crate) endpoint: EndpointError,
+}
+
+/// Height of a tree for normalisation: the stats height, else the largest
+/// extent, else 1 m.
+fn tree_height(tree: &Tree) -> f32 {
+    let stats = tree.stats();
+    if stats.height > 1e-6 && stats.height.is_finite() {
+        return stats.height;
+    }
+    let [lo, hi] = stats.bounds;
+    let extent = (0..3).map(|i| hi[i] - lo[i]).fold(0.0f32, f32::max);
+    if extent > 1e-6 && extent.is_finite() {
+        extent
+    } else {
+        1.0
+    }
+}
+
+/// Checks that `analysis` was made from `tree`.
+fn check_analysis(tree: &Tree, analysis: &Analysis, side: Side) -> Result<(), MorphError> {
+    let mismatch = |reason: String| MorphError::AnalysisMismatch { side, reason };
+    let skeleton = tree.skeleton();
+    if analysis.orders().len() != skeleton.len() {
+        return Err(mismatch(format!(
+            "{} node orders for {} nodes",
+            analysis.orders().len(),
+            skeleton.len()
+        )));
+    }
+    if analysis.leaves().len() != tree.leaves().len() {
+        return Err(mismatch(format!(
+            "{} leaf placements for {} leaves",
+            analysis.leaves().len(),
+            tree.leaves().len()
+        )));
+    }
+    if analysis.chains().is_empty() || analysis.groups().is_empty() {
+        return Err(mismatch("the analysis has no chains".into()));
+    }
+    let chains = analysis.chains().len() as ChainId;
+    for c in analysis.chains() {
+        if c.nodes.len() < 2
+            || c.points.len() != c.nodes.len()
+            || c.radii.len() != c.nodes.len()
+            || c.frames.len() != c.nodes.len()
+            || c.arc_lengths.len() != c.nodes.len()
+        {
+            return Err(mismatch(format!("chain {} is malformed", c.id)));
+        }
+        if c.parent.is_some_and(|p| p >= c.id) || c.children.iter().any(|&k| k >= chains) {
+            return Err(mismatch(format!(
+                "chain {} has a bad parent or child",
+                c.id
+            )));
+        }
+        for (&n, &p) in c.nodes.iter().zip(&c.points) {
+            if n as usize >= skeleton.len() || skeleton.node(n).position != p {
+                return Err(mismatch(format!(
+                    "chain {} names node {n}, which is not at {p}",
+                    c.id
+                )));
+            }
+        }
+    }
+    for (i, l) in analysis.leaves().iter().enumerate() {
+        if l.inner_lobe >= chains {
+            return Err(mismatch(format!("leaf {i} has no inner lobe chain")));
+        }
+    }
+    Ok(())
+}
+
+impl MorphPlan {
+    /// Matches `source` with `target` (§5) and builds the union topology and
+    /// interpolation data (§6). Each analysis must come from its tree.
+    pub fn new(
+        source: &Tree,
+        source_analysis: &Analysis,
+        target: &Tree,
+        target_analysis: &Analysis,
+        options: &MorphOptions,
+    ) -> Result<MorphPlan, MorphError> {
+        options.validate()?;
+        check_analysis(source, source_analysis, Side::Source)?;
+        check_analysis(target, target_analysis, Side::Target)?;
+        let heights = [tree_height(source), tree_height(target)];
+        let s = Input::new(source, source_analysis, heights[0]);
+        let t = Input::new(target, target_analysis, heights[1]);
+        let correspondence = correspond(&s, &t, options);
+        let mut plan = build(&s, &t, correspondence, options, heights)?;
+        plan.endpoint = plan.measure_endpoints(source, target);
+        Ok(plan)
+    }
+
+    /// The union topology every frame shares.
+    pub fn topology(&self) -> &FrameTopology {
+        &self.topology
+    }
+
+    /// The correspondences the plan was built from.
+    pub fn correspondence(&self) -> &Correspondence {
+        &self.correspondence
+    }
+
+    /// The union chains, parents first (by level); chain `i` is strand `i`.
+    pub fn chains(&self) -> &[UnionChain] {
+        &self.chains
+    }
+
+    /// Per union node, the input nodes it reproduces at t = 0 and t = 1.
+    pub fn node_origins(&self) -> &[NodeOrigin] {
+        &self.node_origins
+    }
+
+    /// Per union leaf (in topology order), the input leaves it comes from
+    /// and goes to.
+    pub fn leaf_origins(&self) -> &[LeafMatch] {
+        &self.correspondence.leaves
+    }
+
+    /// Heights of the source and target trees, metres (bounds above the
+    /// root; see the crate docs).
+    pub fn heights(&self) -> [f32; 2] {
+        self.heights
+    }
+
+    /// The scale metrics are relative to: the larger of the two heights,
+    /// metres.
+    pub fn height(&self) -> f32 {
+        self.heights[0].max(self.heights[1])
+    }
+
+    /// How exactly the frames at t = 0 and t = 1 reproduce the inputs
+    /// (measured once when the plan is built).
+    pub fn endpoint_error(&self) -> EndpointError {
+        self.endpoint
+    }
+
+    /// The in-between tree at `t` in a new frame (convenience; a
+    /// [`Morpher`] reuses its buffers).
+    pub fn frame(&self, t: f32) -> Frame {
+        let mut morpher = Morpher::new(self);
+        let mut frame = morpher.new_frame();
+        morpher.morph(t, &mut frame);
+        frame
+    }
+
+    pub(crate) fn root_at(&self, t: f32) -> Vec3 {
+        self.root[0].lerp(self.root[1], t)
+    }
+
+    /// Union parameter of a chain's growth location at time `t`.
+    pub(crate) fn growth_at(&self, chain: usize, t: f32) -> f32 {
+        let p = self.chain_plans[chain].p;
+        p[0] + (p[1] - p[0]) * t
+    }
+
+    fn measure_endpoints(&self, source: &Tree, target: &Tree) -> EndpointError {
+        let mut morpher = Morpher::new(self);
+        let mut frame = Frame {
+            t: 0.0,
+            positions: Vec::new(),
+            radii: Vec::new(),
+            leaves: Vec::new(),
+            bark_blend: 0.0,
+        };
+        let mut junctions = vec![false; self.topology.node_count()];
+        for c in &self.chains {
+            junctions[c.nodes.start as usize] = true;
+        }
+        let mut errors = [0.0f32; 2];
+        for (side, tree) in [source, target].into_iter().enumerate() {
+            morpher.morph(side as f32, &mut frame);
+            let nodes = tree.skeleton();
+            let mut worst = 0.0f32;
+            for (i, o) in self.node_origins.iter().enumerate() {
+                let origin = if side == 0 { o.source } else { o.target };
+                if let Some(n) = origin {
+                    let node = nodes.node(n);
+                    worst = worst.max(frame.positions[i].distance(node.position));
+                    if !junctions[i] {
+                        worst = worst.max((frame.radii[i] - node.radius).abs());
+                    }
+                }
+            }
+            for (i, m) in self.correspondence.leaves.iter().enumerate() {
+                let origin = if side == 0 { m.source } else { m.target };
+                if let Some(l) = origin {
+                    let leaf = &tree.leaves()[l as usize];
+                    let f = &frame.leaves[i];
+                    worst = worst
+                        .max(f.anchor.distance(tree.leaf_anchor(leaf)))
+                        .max((f.width - leaf.width).abs())
+                        .max((f.height - leaf.height).abs());
+                }
+            }
+            errors[side] = worst / self.heights[side];
+        }
+        EndpointError {
+            source: errors[0],
+            target: errors[1],
+        }
+    }
+}

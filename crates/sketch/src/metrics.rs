@@ -1,0 +1,714 @@
+//! Per-frame measurements: how close the in-between crown is to the
+//! reference (the paper's Figure 12), how well the final foliage fills the
+//! sketch, and whether anything floats.
+//!
+//! # The foliage outline
+//! The crown silhouette of a frame is measured from the foliage itself, not
+//! from our cages (which match the reference by construction). Every leaf
+//! blade with a non-zero size is projected as a quad and rasterised into a
+//! square grid of [`crate::SketchOptions::raster_size`]² pixels over the
+//! joint bounds of the projected blades and the reference polygon (padded
+//! by the closing radius). A morphological **closing** (Euclidean dilation
+//! then erosion by [`crate::SketchOptions::closing_radius`] × the crown's
+//! screen diagonal, via exact distance transforms) bridges the gaps between
+//! leaves, and enclosed holes are filled: the result is the foliage's
+//! outline as an artist would trace it.
+//!
+//! - **IoU**: |outline ∩ R| / |outline ∪ R| in pixels, R the reference crown
+//!   (at t = 1, the sketched crown) rasterised on the same grid.
+//! - **Fréchet**: the outer boundary of the outline's largest 4-connected
+//!   region is traced along pixel edges, and it and R are resampled to 128
+//!   points each by arc length, counter-clockwise. R starts at its topmost
+//!   point; the outline starts where the cyclic shift minimising the summed
+//!   squared distances to R's samples puts it (the discrete Fréchet distance
+//!   of closed curves needs a common start; we take the least of the
+//!   distances at that shift and its ±3 neighbours). The distance is in NDC;
+//!   normalised, it is divided by the crown's screen diagonal.
+//!
+//! # Floating parts (the morph pipeline's definitions)
+//! - a **floating branch**: a chain whose junction is farther than ε from
+//!   its parent chain's polyline plus the radius there (a root chain: from
+//!   the root node);
+//! - a **floating leaf**: an anchor farther from the polyline of the chain
+//!   it grows on than the leaf's rest offset + ε.
+//!
+//! ε is 10⁻⁴ × the tree's height.
+
+use glam::{Vec2, Vec3};
+use serde::Serialize;
+use treemorph_tree::Frame;
+
+use crate::frechet::discrete_frechet_with;
+use crate::plan::SketchPlan;
+use crate::polygon;
+
+/// Samples per curve for the Fréchet distance.
+const SAMPLES: usize = 128;
+
+/// What one frame measures.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FrameMetrics {
+    /// Animation time.
+    pub t: f32,
+    /// Discrete Fréchet distance between the foliage outline and the
+    /// reference crown at `t`, NDC units.
+    pub frechet: f32,
+    /// `frechet` divided by the crown's screen diagonal.
+    pub frechet_normalised: f32,
+    /// Intersection over union of the foliage outline and the reference
+    /// crown at `t` (at t = 1: the sketched crown).
+    pub iou: f32,
+    /// Fraction of the reference crown the foliage outline covers.
+    pub coverage: f32,
+    /// Area of the foliage outline outside the reference crown, as a
+    /// fraction of the reference's area.
+    pub spill: f32,
+    /// Branches whose root is off their parent's axis (must be 0).
+    pub floating_branches: usize,
+    /// Leaves off their branch (must be 0).
+    pub floating_leaves: usize,
+}
+
+/// Shape measurements of any frame seen from the plan's view (e.g. one of
+/// another pipeline, for comparisons).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ShapeMetrics {
+    /// Animation time the reference crown was taken at.
+    pub t: f32,
+    /// See [`FrameMetrics::frechet`].
+    pub frechet: f32,
+    /// See [`FrameMetrics::frechet_normalised`].
+    pub frechet_normalised: f32,
+    /// See [`FrameMetrics::iou`].
+    pub iou: f32,
+    /// See [`FrameMetrics::coverage`].
+    pub coverage: f32,
+    /// See [`FrameMetrics::spill`].
+    pub spill: f32,
+}
+
+/// Reusable metrics context for one plan (keeps its rasters).
+pub struct SketchMetrics<'p> {
+    plan: &'p SketchPlan,
+    size: usize,
+    mask: Vec<bool>,
+    reference: Vec<bool>,
+    dist: Vec<f32>,
+    scratch: Vec<f32>,
+    row: Vec<f32>,
+    stack: Vec<usize>,
+    label: Vec<u32>,
+}
+
+impl<'p> SketchMetrics<'p> {
+    /// A metrics context for `plan`.
+    pub fn new(plan: &'p SketchPlan) -> SketchMetrics<'p> {
+        let size = plan.options.raster_size as usize;
+        SketchMetrics {
+            plan,
+            size,
+            mask: vec![false; size * size],
+            reference: vec![false; size * size],
+            dist: vec![0.0; size * size],
+            scratch: Vec::new(),
+            row: Vec::new(),
+            stack: Vec::new(),
+            label: vec![0; size * size],
+        }
+    }
+
+    /// Everything one of the plan's frames measures.
+    pub fn measure(&mut self, frame: &Frame) -> FrameMetrics {
+        let shape = self.shape(frame);
+        let (floating_branches, floating_leaves) = self.floating(frame);
+        FrameMetrics {
+            t: shape.t,
+            frechet: shape.frechet,
+            frechet_normalised: shape.frechet_normalised,
+            iou: shape.iou,
+            coverage: shape.coverage,
+            spill: shape.spill,
+            floating_branches,
+            floating_leaves,
+        }
+    }
+
+    /// Fréchet distance and IoU of any frame's foliage against the
+    /// reference crown at `frame.t`.
+    pub fn shape(&mut self, frame: &Frame) -> ShapeMetrics {
+        let t = crate::plan::clamp_t(frame.t);
+        let reference = self.plan.reference_crown(t);
+        let (lo, px) = self.rasterise(frame, &reference);
+        let inter = self
+            .mask
+            .iter()
+            .zip(&self.reference)
+            .filter(|&(&a, &b)| a && b)
+            .count();
+        let union = self
+            .mask
+            .iter()
+            .zip(&self.reference)
+            .filter(|&(&a, &b)| a || b)
+            .count();
+        let iou = if union > 0 {
+            inter as f32 / union as f32
+        } else {
+            1.0
+        };
+        let reference_px = self.reference.iter().filter(|&&r| r).count().max(1) as f32;
+        let foliage_px = self.mask.iter().filter(|&&m| m).count() as f32;
+        let coverage = inter as f32 / reference_px;
+        let spill = (foliage_px - inter as f32) / reference_px;
+        let outline = self.trace(lo, px);
+        let frechet = closed_frechet(&outline, &reference, &mut self.row);
+        ShapeMetrics {
+            t,
+            frechet,
+            frechet_normalised: frechet / self.plan.crown_size,
+            iou,
+            coverage,
+            spill,
+        }
+    }
+
+    /// The foliage outline of a frame (NDC, counter-clockwise; empty when
+    /// the frame has no visible leaves).
+    pub fn outline(&mut self, frame: &Frame) -> Vec<Vec2> {
+        let reference = self.plan.reference_crown(frame.t);
+        let (lo, px) = self.rasterise(frame, &reference);
+        self.trace(lo, px)
+    }
+
+    /// Counts floating branches and leaves of one of the plan's frames
+    /// (see the module docs).
+    pub fn floating(&self, frame: &Frame) -> (usize, usize) {
+        let plan = self.plan;
+        let n = plan.rest.positions.len();
+        if frame.positions.len() != n
+            || frame.radii.len() != n
+            || frame.leaves.len() != plan.leaf_chain.len()
+        {
+            return (plan.chain_ranges.len(), plan.leaf_chain.len());
+        }
+        let eps = 1e-4 * plan.height;
+        let pos = &frame.positions;
+        let chain = |c: u32| {
+            let (a, b) = plan.chain_ranges[c as usize];
+            &plan.chain_nodes[a as usize..b as usize]
+        };
+        let mut branches = 0;
+        for (c, parent) in plan.chain_parent.iter().enumerate() {
+            let junction = pos[chain(c as u32)[0] as usize];
+            let floating = match parent {
+                None => junction.distance(pos[0]) > eps,
+                Some(p) => {
+                    let (d, r) = to_polyline(junction, chain(*p), pos, &frame.radii);
+                    d.is_nan() || d > r + eps
+                }
+            };
+            branches += usize::from(floating);
+        }
+        let mut leaves = 0;
+        for (l, leaf) in frame.leaves.iter().enumerate() {
+            let (d, _) = to_polyline(leaf.anchor, chain(plan.leaf_chain[l]), pos, &frame.radii);
+            leaves += usize::from(d.is_nan() || d > plan.leaf_offset[l].length() + eps);
+        }
+        (branches, leaves)
+    }
+
+    /// Rasterises the foliage outline into `mask` and the reference into
+    /// `reference`; returns the grid's lower-left corner and pixel size.
+    fn rasterise(&mut self, frame: &Frame, reference: &[Vec2]) -> (Vec2, f32) {
+        let plan = self.plan;
+        let cam = &plan.camera;
+        let g = self.size;
+        // Projected blades.
+        let mut quads: Vec<[Vec2; 4]> = Vec::with_capacity(frame.leaves.len());
+        for leaf in &frame.leaves {
+            if !(leaf.width > 0.0 && leaf.height > 0.0) {
+                continue;
+            }
+            let corners = [
+                Vec3::new(-0.5 * leaf.width, 0.0, 0.0),
+                Vec3::new(0.5 * leaf.width, 0.0, 0.0),
+                Vec3::new(0.5 * leaf.width, leaf.height, 0.0),
+                Vec3::new(-0.5 * leaf.width, leaf.height, 0.0),
+            ]
+            .map(|c| leaf.anchor + leaf.orientation * c);
+            if cam.is_perspective() && corners.iter().any(|&c| cam.depth(c) <= 0.0) {
+                continue;
+            }
+            let q = corners.map(|c| cam.project(c).0);
+            if q.iter().all(|p| p.is_finite()) {
+                quads.push(q);
+            }
+        }
+        let mut lo = polygon::bounds(reference).map_or(Vec2::ZERO, |b| b.0);
+        let mut hi = polygon::bounds(reference).map_or(Vec2::ZERO, |b| b.1);
+        for q in &quads {
+            for p in q {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+        }
+        let radius = plan.options.closing_radius * plan.crown_size;
+        let side = (hi - lo).max_element();
+        let px = (side + 2.0 * radius) / (g as f32 - 4.0);
+        let centre = 0.5 * (lo + hi);
+        let lo = centre - Vec2::splat(0.5 * px * g as f32);
+        let to_px = |p: Vec2| (p - lo) / px;
+
+        self.mask.fill(false);
+        for q in &quads {
+            let q = q.map(to_px);
+            fill_triangle(&mut self.mask, g, q[0], q[1], q[2]);
+            fill_triangle(&mut self.mask, g, q[0], q[2], q[3]);
+            // Blades smaller than a pixel still count.
+            let c = (q[0] + q[1] + q[2] + q[3]) * 0.25;
+            if c.x >= 0.0 && c.y >= 0.0 && (c.x as usize) < g && (c.y as usize) < g {
+                self.mask[c.y as usize * g + c.x as usize] = true;
+            }
+        }
+        let r_px = radius / px;
+        if r_px > 0.0 {
+            let r2 = r_px * r_px;
+            // Dilation: within r of foliage.
+            self.distance_transform(true);
+            for (m, &d) in self.mask.iter_mut().zip(&self.dist) {
+                *m = d <= r2;
+            }
+            // Erosion: farther than r from the background.
+            self.distance_transform(false);
+            for (m, &d) in self.mask.iter_mut().zip(&self.dist) {
+                *m = *m && d > r2;
+            }
+        }
+        self.fill_holes();
+        let poly: Vec<Vec2> = reference.iter().map(|&p| to_px(p)).collect();
+        fill_polygon(&mut self.reference, g, &poly);
+        (lo, px)
+    }
+
+    /// Squared Euclidean distance of every pixel to the nearest pixel whose
+    /// mask equals `to` (Felzenszwalb & Huttenlocher); outside the grid
+    /// counts as background.
+    fn distance_transform(&mut self, to: bool) {
+        let g = self.size;
+        let inf = 1e20f32;
+        for (d, &m) in self.dist.iter_mut().zip(&self.mask) {
+            *d = if m == to { 0.0 } else { inf };
+        }
+        // Distances to the background see the outside of the grid as
+        // background: pad each 1D pass with one background sample.
+        let pad = if to { 0 } else { 1 };
+        let n = g + 2 * pad;
+        let mut f = vec![0.0f32; n];
+        let mut out = vec![0.0f32; n];
+        self.scratch.resize(2 * n + 1, 0.0);
+        // Columns, then rows.
+        for x in 0..g {
+            for (k, v) in f.iter_mut().enumerate() {
+                *v = if k < pad || k >= g + pad {
+                    0.0
+                } else {
+                    self.dist[(k - pad) * g + x]
+                };
+            }
+            edt_1d(&f, &mut out, &mut self.scratch);
+            for y in 0..g {
+                self.dist[y * g + x] = out[y + pad];
+            }
+        }
+        for y in 0..g {
+            for (k, v) in f.iter_mut().enumerate() {
+                *v = if k < pad || k >= g + pad {
+                    0.0
+                } else {
+                    self.dist[y * g + k - pad]
+                };
+            }
+            edt_1d(&f, &mut out, &mut self.scratch);
+            for x in 0..g {
+                self.dist[y * g + x] = out[x + pad];
+            }
+        }
+    }
+
+    /// Sets every background pixel not 4-connected to the border.
+    fn fill_holes(&mut self) {
+        let g = self.size;
+        let mut outside = vec![false; g * g];
+        self.stack.clear();
+        for i in 0..g {
+            for p in [i, (g - 1) * g + i, i * g, i * g + g - 1] {
+                if !self.mask[p] && !outside[p] {
+                    outside[p] = true;
+                    self.stack.push(p);
+                }
+            }
+        }
+        while let Some(p) = self.stack.pop() {
+            let (x, y) = (p % g, p / g);
+            let mut visit = |q: usize| {
+                if !self.mask[q] && !outside[q] {
+                    outside[q] = true;
+                    self.stack.push(q);
+                }
+            };
+            if x > 0 {
+                visit(p - 1);
+            }
+            if x + 1 < g {
+                visit(p + 1);
+            }
+            if y > 0 {
+                visit(p - g);
+            }
+            if y + 1 < g {
+                visit(p + g);
+            }
+        }
+        for (m, o) in self.mask.iter_mut().zip(outside) {
+            *m = !o;
+        }
+    }
+
+    /// The outer boundary of the mask's largest 4-connected region, in NDC.
+    fn trace(&mut self, lo: Vec2, px: f32) -> Vec<Vec2> {
+        let g = self.size;
+        // Label components.
+        self.label.fill(0);
+        let mut best = (0usize, 0u32);
+        let mut next = 0u32;
+        for start in 0..g * g {
+            if !self.mask[start] || self.label[start] != 0 {
+                continue;
+            }
+            next += 1;
+            let mut count = 0;
+            self.stack.clear();
+            self.stack.push(start);
+            self.label[start] = next;
+            while let Some(p) = self.stack.pop() {
+                count += 1;
+                let (x, y) = (p % g, p / g);
+                let nbrs = [
+                    (x > 0).then(|| p - 1),
+                    (x + 1 < g).then(|| p + 1),
+                    (y > 0).then(|| p - g),
+                    (y + 1 < g).then(|| p + g),
+                ];
+                for q in nbrs.into_iter().flatten() {
+                    if self.mask[q] && self.label[q] == 0 {
+                        self.label[q] = next;
+                        self.stack.push(q);
+                    }
+                }
+            }
+            if count > best.0 {
+                best = (count, next);
+            }
+        }
+        if best.0 == 0 {
+            return Vec::new();
+        }
+        let inside = |x: i64, y: i64| {
+            x >= 0
+                && y >= 0
+                && (x as usize) < g
+                && (y as usize) < g
+                && self.label[y as usize * g + x as usize] == best.1
+        };
+        // Directed boundary edges with the region on the left; per lattice
+        // vertex a bit set of outgoing directions (E, N, W, S).
+        let w = g + 1;
+        let mut out = vec![0u8; w * w];
+        for y in 0..g as i64 {
+            for x in 0..g as i64 {
+                if !inside(x, y) {
+                    continue;
+                }
+                let (xu, yu) = (x as usize, y as usize);
+                if !inside(x, y - 1) {
+                    out[yu * w + xu] |= 1; // bottom edge, east
+                }
+                if !inside(x + 1, y) {
+                    out[yu * w + xu + 1] |= 2; // right edge, north
+                }
+                if !inside(x, y + 1) {
+                    out[(yu + 1) * w + xu + 1] |= 4; // top edge, west
+                }
+                if !inside(x - 1, y) {
+                    out[(yu + 1) * w + xu] |= 8; // left edge, south
+                }
+            }
+        }
+        const STEP: [(i64, i64); 4] = [(1, 0), (0, 1), (-1, 0), (0, -1)];
+        let mut loops: Vec<Vec<(i64, i64)>> = Vec::new();
+        for v0 in 0..w * w {
+            while out[v0] != 0 {
+                let mut dir = out[v0].trailing_zeros() as usize;
+                let (mut x, mut y) = ((v0 % w) as i64, (v0 / w) as i64);
+                let mut lp = Vec::new();
+                loop {
+                    let v = y as usize * w + x as usize;
+                    if out[v] & (1 << dir) == 0 {
+                        break;
+                    }
+                    out[v] &= !(1 << dir);
+                    lp.push((x, y));
+                    x += STEP[dir].0;
+                    y += STEP[dir].1;
+                    let nv = y as usize * w + x as usize;
+                    // Prefer a left turn, then straight, then right.
+                    let choices = [(dir + 1) % 4, dir, (dir + 3) % 4];
+                    match choices.iter().find(|&&d| out[nv] & (1 << d) != 0) {
+                        Some(&d) => dir = d,
+                        None => break,
+                    }
+                }
+                loops.push(lp);
+            }
+        }
+        let area = |l: &Vec<(i64, i64)>| {
+            let n = l.len();
+            (0..n)
+                .map(|i| {
+                    let (a, b) = (l[i], l[(i + 1) % n]);
+                    (a.0 * b.1 - b.0 * a.1) as f64
+                })
+                .sum::<f64>()
+        };
+        let Some(outer) = loops.iter().max_by(|a, b| area(a).total_cmp(&area(b))) else {
+            return Vec::new();
+        };
+        // Keep corners only.
+        let n = outer.len();
+        let mut poly = Vec::new();
+        for i in 0..n {
+            let (a, b, c) = (outer[(i + n - 1) % n], outer[i], outer[(i + 1) % n]);
+            if (b.0 - a.0) * (c.1 - b.1) - (b.1 - a.1) * (c.0 - b.0) != 0 {
+                poly.push(lo + Vec2::new(b.0 as f32, b.1 as f32) * px);
+            }
+        }
+        poly
+    }
+}
+
+/// 1D squared distance transform of a sampled function (Felzenszwalb &
+/// Huttenlocher 2012). `scratch` holds the parabola locations and bounds.
+fn edt_1d(f: &[f32], out: &mut [f32], scratch: &mut Vec<f32>) {
+    let n = f.len();
+    let mut v = vec![0usize; n];
+    scratch.resize(n + 1, 0.0);
+    let z = scratch;
+    let mut k = 0usize;
+    v[0] = 0;
+    z[0] = f32::NEG_INFINITY;
+    z[1] = f32::INFINITY;
+    let inf = 1e19f32;
+    for q in 1..n {
+        if f[q] >= inf {
+            continue;
+        }
+        if f[v[k]] >= inf {
+            v[k] = q;
+            continue;
+        }
+        loop {
+            let p = v[k];
+            let s =
+                ((f[q] + (q * q) as f32) - (f[p] + (p * p) as f32)) / (2.0 * (q as f32 - p as f32));
+            if s <= z[k] && k > 0 {
+                k -= 1;
+                continue;
+            }
+            k += 1;
+            v[k] = q;
+            z[k] = s;
+            z[k + 1] = f32::INFINITY;
+            break;
+        }
+    }
+    if f[v[0]] >= inf {
+        out.iter_mut().for_each(|o| *o = 1e20);
+        return;
+    }
+    let mut k = 0;
+    for (q, o) in out.iter_mut().enumerate().take(n) {
+        while z[k + 1] < q as f32 {
+            k += 1;
+        }
+        let d = q as f32 - v[k] as f32;
+        *o = d * d + f[v[k]];
+    }
+}
+
+/// Marks pixels whose centres are inside triangle `abc` (pixel units).
+fn fill_triangle(mask: &mut [bool], g: usize, a: Vec2, b: Vec2, c: Vec2) {
+    let lo = a.min(b).min(c);
+    let hi = a.max(b).max(c);
+    let x0 = (lo.x - 0.5).ceil().max(0.0) as usize;
+    let y0 = (lo.y - 0.5).ceil().max(0.0) as usize;
+    let x1 = ((hi.x - 0.5).floor().min(g as f32 - 1.0)).max(-1.0);
+    let y1 = ((hi.y - 0.5).floor().min(g as f32 - 1.0)).max(-1.0);
+    if x1 < 0.0 || y1 < 0.0 {
+        return;
+    }
+    let (x1, y1) = (x1 as usize, y1 as usize);
+    let area = (b - a).perp_dot(c - a);
+    if area == 0.0 {
+        return;
+    }
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let w0 = (b - a).perp_dot(p - a);
+            let w1 = (c - b).perp_dot(p - b);
+            let w2 = (a - c).perp_dot(p - c);
+            let inside = if area > 0.0 {
+                w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0
+            } else {
+                w0 <= 0.0 && w1 <= 0.0 && w2 <= 0.0
+            };
+            if inside {
+                mask[y * g + x] = true;
+            }
+        }
+    }
+}
+
+/// Sets `mask` to the pixels whose centres are inside `poly` (pixel units,
+/// even–odd), clearing the rest.
+fn fill_polygon(mask: &mut [bool], g: usize, poly: &[Vec2]) {
+    mask.fill(false);
+    let n = poly.len();
+    let mut xs: Vec<f32> = Vec::new();
+    for y in 0..g {
+        let cy = y as f32 + 0.5;
+        xs.clear();
+        for i in 0..n {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            if (a.y > cy) != (b.y > cy) {
+                xs.push(a.x + (cy - a.y) / (b.y - a.y) * (b.x - a.x));
+            }
+        }
+        xs.sort_by(f32::total_cmp);
+        for pair in xs.chunks_exact(2) {
+            let x0 = (pair[0] - 0.5).ceil().max(0.0) as usize;
+            let x1 = (pair[1] - 0.5).floor().min(g as f32 - 1.0);
+            if x1 < 0.0 {
+                continue;
+            }
+            for x in x0..=x1 as usize {
+                mask[y * g + x] = true;
+            }
+        }
+    }
+}
+
+/// Distance from `p` to the polyline through `nodes`, and the radius at
+/// the closest point.
+fn to_polyline(p: Vec3, nodes: &[u32], pos: &[Vec3], radii: &[f32]) -> (f32, f32) {
+    if let [only] = nodes {
+        return (p.distance(pos[*only as usize]), radii[*only as usize]);
+    }
+    let mut best = (f32::INFINITY, 0.0);
+    for w in nodes.windows(2) {
+        let (i, j) = (w[0] as usize, w[1] as usize);
+        let (a, b) = (pos[i], pos[j]);
+        let ab = b - a;
+        let len2 = ab.length_squared();
+        let f = if len2 > 0.0 {
+            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d = p.distance(a + ab * f);
+        if d < best.0 {
+            best = (d, radii[i] + (radii[j] - radii[i]) * f);
+        }
+    }
+    best
+}
+
+/// Discrete Fréchet distance between two closed curves (see the module
+/// docs for the common start).
+fn closed_frechet(outline: &[Vec2], reference: &[Vec2], row: &mut Vec<f32>) -> f32 {
+    if outline.len() < 3 || reference.len() < 3 {
+        return f32::INFINITY;
+    }
+    let orient = |p: &[Vec2]| -> Vec<Vec2> {
+        let mut v = p.to_vec();
+        if polygon::signed_area(&v) < 0.0 {
+            v.reverse();
+        }
+        v
+    };
+    let o = orient(outline);
+    let r = orient(reference);
+    let top = polygon::topmost(&r);
+    let r: Vec<Vec2> = (0..r.len()).map(|k| r[(top + k) % r.len()]).collect();
+    let rs = polygon::resample_closed(&r, SAMPLES);
+    let os = polygon::resample_closed(&o, SAMPLES);
+    let mut best = (f32::INFINITY, 0usize);
+    for shift in 0..SAMPLES {
+        let cost: f32 = (0..SAMPLES)
+            .map(|k| os[(k + shift) % SAMPLES].distance_squared(rs[k]))
+            .sum();
+        if cost < best.0 {
+            best = (cost, shift);
+        }
+    }
+    let mut a: Vec<Vec2> = Vec::with_capacity(SAMPLES + 1);
+    let mut b: Vec<Vec2> = rs.clone();
+    b.push(rs[0]);
+    let mut result = f32::INFINITY;
+    for delta in -3i64..=3 {
+        let shift = (best.1 as i64 + delta).rem_euclid(SAMPLES as i64) as usize;
+        a.clear();
+        a.extend((0..SAMPLES).map(|k| os[(k + shift) % SAMPLES]));
+        a.push(os[shift]);
+        result = result.min(discrete_frechet_with(&a, &b, row));
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn edt_matches_brute_force() {
+        let f: Vec<f32> = [1e20, 0.0, 1e20, 1e20, 1e20, 0.0, 1e20, 1e20].to_vec();
+        let mut out = vec![0.0; f.len()];
+        let mut scratch = Vec::new();
+        edt_1d(&f, &mut out, &mut scratch);
+        for (q, &got) in out.iter().enumerate() {
+            let brute = (0..f.len())
+                .filter(|&p| f[p] == 0.0)
+                .map(|p| (q as f32 - p as f32).powi(2))
+                .fold(f32::INFINITY, f32::min);
+            assert_eq!(got, brute, "at {q}");
+        }
+    }
+
+    #[test]
+    fn polygon_fill_counts_pixel_centres() {
+        let g = 10;
+        let mut mask = vec![false; g * g];
+        let sq = [
+            Vec2::new(2.0, 2.0),
+            Vec2::new(6.0, 2.0),
+            Vec2::new(6.0, 5.0),
+            Vec2::new(2.0, 5.0),
+        ];
+        fill_polygon(&mut mask, g, &sq);
+        assert_eq!(mask.iter().filter(|&&m| m).count(), 12);
+        let mut tri = vec![false; g * g];
+        fill_triangle(&mut tri, g, sq[0], sq[1], sq[2]);
+        fill_triangle(&mut tri, g, sq[0], sq[2], sq[3]);
+        assert_eq!(tri, mask);
+    }
+}

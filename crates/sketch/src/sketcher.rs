@@ -1,0 +1,265 @@
+//! [`Sketcher`]: makes frames from a plan, reusing its buffers.
+
+use faer::Mat;
+use faer::dyn_stack::MemBuffer;
+use glam::{Quat, Vec2};
+use treemorph_tree::{Frame, FrameLeaf, Leaf, LeafMaterial, Materials, Node, Tree, TreeParts};
+
+use crate::error::SketchError;
+use crate::laplacian::{COLS, scratch_for};
+use crate::plan::{NONE, SketchPlan, Source, clamp_t};
+
+/// Reusable context that deforms the planned tree to any time t ∈ [0, 1]
+/// (the paper's Step 1–3 per frame). Keeps its buffers between frames.
+pub struct Sketcher<'p> {
+    pub(crate) plan: &'p SketchPlan,
+    pub(crate) cage_disp: Vec<Vec2>,
+    target_disp: Vec<Vec2>,
+    node_disp: Vec<Vec2>,
+    b: Vec<[f64; COLS]>,
+    x: Mat<f64>,
+    mem: MemBuffer,
+    branch_rot: Vec<Quat>,
+    pub(crate) lobes: crate::lobes::LobeBuffers,
+}
+
+impl<'p> Sketcher<'p> {
+    /// A sketcher for `plan`.
+    pub fn new(plan: &'p SketchPlan) -> Sketcher<'p> {
+        let n = plan.rest.positions.len();
+        Sketcher {
+            plan,
+            cage_disp: Vec::with_capacity(plan.mct.vertex_count),
+            target_disp: vec![Vec2::ZERO; n],
+            node_disp: vec![Vec2::ZERO; n],
+            b: Vec::new(),
+            x: Mat::zeros(0, 0),
+            mem: scratch_for(plan.levels.iter().map(|l| &l.ls)),
+            branch_rot: vec![Quat::IDENTITY; n],
+            lobes: Default::default(),
+        }
+    }
+
+    /// The plan.
+    pub fn plan(&self) -> &'p SketchPlan {
+        self.plan
+    }
+
+    /// Writes the tree at time `t` (clamped to [0, 1]; NaN is 0) into
+    /// `frame`, resizing it to the plan's topology. t = 0 reproduces the
+    /// input tree exactly.
+    ///
+    /// 1. The crown cage moves along the correspondence:
+    ///    `S(t) = S0 + t (S1 − S0)`; every other cage follows its parent by
+    ///    mean value coordinates, plus `t ×` its self-adaptive correction.
+    /// 2. Each chain's tip target is its control cage's mean value
+    ///    combination; chains are solved order by order (Eq. 1, backward
+    ///    propagation from the tip), each chain's junction fixed where its
+    ///    parent put it (forward propagation) — chains stay connected by
+    ///    construction.
+    /// 3. Nodes move in the view plane at their rest depth; pruned chains
+    ///    shrink toward their junction by `1 − t` (radii too) and their
+    ///    leaves with them; leaves ride on their branch, rotated with it.
+    pub fn deform(&mut self, t: f32, frame: &mut Frame) {
+        let t = clamp_t(t);
+        let plan = self.plan;
+        plan.mct
+            .displacements(&plan.crown_delta, t, &mut self.cage_disp);
+        for (n, &c) in plan.mct.control.iter().enumerate() {
+            if c != NONE {
+                self.target_disp[n] = plan.mct.node_displacement(n, &self.cage_disp);
+            }
+        }
+        self.node_disp[0] = Vec2::ZERO;
+        for level in &plan.levels {
+            for &tip in &level.tips {
+                self.node_disp[tip as usize] = self.target_disp[tip as usize];
+            }
+            if level.unknowns.is_empty() {
+                continue;
+            }
+            self.b.clear();
+            self.b.resize(level.ls.rows(), [0.0; COLS]);
+            for &(row, source, coef) in &level.rhs {
+                let v = match source {
+                    Source::Node(n) => self.node_disp[n as usize],
+                    Source::Target(n) => self.target_disp[n as usize],
+                };
+                let r = &mut self.b[row as usize];
+                r[0] += f64::from(coef * v.x);
+                r[1] += f64::from(coef * v.y);
+            }
+            level.ls.solve(&self.b, &mut self.x, &mut self.mem);
+            for (k, &n) in level.unknowns.iter().enumerate() {
+                self.node_disp[n as usize] =
+                    Vec2::new(self.x[(k, 0)] as f32, self.x[(k, 1)] as f32);
+            }
+        }
+
+        // Positions in the view plane at rest depth.
+        let rest = &plan.rest;
+        frame.t = t;
+        frame.bark_blend = 0.0;
+        frame.positions.clear();
+        frame.positions.extend(
+            rest.positions
+                .iter()
+                .zip(&self.node_disp)
+                .zip(&plan.depth)
+                .map(|((&p, &d), &z)| p + plan.camera.world_delta(d, z)),
+        );
+        frame.radii.clear();
+        frame.radii.extend_from_slice(&rest.radii);
+
+        // Wilting subtrees shrink toward their junction.
+        let s = 1.0 - t;
+        for w in &plan.wilts {
+            let j = frame.positions[w.junction as usize];
+            for &node in &w.nodes {
+                let p = &mut frame.positions[node as usize];
+                *p += (*p - j) * (s - 1.0);
+                frame.radii[node as usize] *= s;
+            }
+        }
+
+        // Branch rotations: rest direction → deformed direction.
+        let parents = &plan.topology.parents;
+        for (i, (rot, parent)) in self.branch_rot.iter_mut().zip(parents).enumerate() {
+            *rot = match *parent {
+                Some(p) => {
+                    let a = rest.positions[i] - rest.positions[p as usize];
+                    let b = frame.positions[i] - frame.positions[p as usize];
+                    if a == b {
+                        Quat::IDENTITY
+                    } else {
+                        match (a.try_normalize(), b.try_normalize()) {
+                            (Some(a), Some(b)) if a != b => Quat::from_rotation_arc(a, b),
+                            _ => Quat::IDENTITY,
+                        }
+                    }
+                }
+                None => Quat::IDENTITY,
+            };
+        }
+
+        // Leaves ride on their branch.
+        frame.leaves.clear();
+        for (l, top) in plan.topology.leaves.iter().enumerate() {
+            let node = top.node as usize;
+            let parent = parents[node].map_or(node, |p| p as usize);
+            let rot = self.branch_rot[node];
+            let ls = if plan.leaf_wilts[l] { s } else { 1.0 };
+            let base = frame.positions[parent].lerp(frame.positions[node], plan.leaf_t[l]);
+            let offset = if ls == 1.0 {
+                plan.leaf_offset[l]
+            } else {
+                plan.leaf_offset[l] * ls
+            };
+            let rest_leaf = &rest.leaves[l];
+            let (offset, orientation) = if rot == Quat::IDENTITY {
+                (offset, plan.leaf_orientation[l])
+            } else {
+                (rot * offset, (rot * plan.leaf_orientation[l]).normalize())
+            };
+            frame.leaves.push(FrameLeaf {
+                anchor: base + offset,
+                orientation,
+                width: rest_leaf.width * ls,
+                height: rest_leaf.height * ls,
+                blend: 0.0,
+            });
+        }
+    }
+
+    /// Every cage's polygon at time `t` (NDC, indexed like
+    /// [`SketchPlan::cages`]), e.g. for drawing the cages over a view.
+    pub fn deform_cages(&mut self, t: f32) -> Vec<Vec<Vec2>> {
+        let plan = self.plan;
+        plan.mct
+            .displacements(&plan.crown_delta, clamp_t(t), &mut self.cage_disp);
+        plan.mct
+            .cages
+            .iter()
+            .map(|c| {
+                c.rest
+                    .iter()
+                    .zip(&self.cage_disp[c.offset..c.offset + c.rest.len()])
+                    .map(|(&r, &d)| r + d)
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// A new frame at time `t`.
+    pub fn frame(&mut self, t: f32) -> Frame {
+        let mut frame = Frame {
+            t: 0.0,
+            positions: Vec::new(),
+            radii: Vec::new(),
+            leaves: Vec::new(),
+            bark_blend: 0.0,
+        };
+        self.deform(t, &mut frame);
+        frame
+    }
+
+    /// The sketched result as a [`Tree`]: the t = 1 frame with wilted
+    /// chains and leaves removed (the input of, e.g., a morph comparison).
+    pub fn result_tree(&mut self, tree: &Tree) -> Result<Tree, SketchError> {
+        let frame = self.frame(1.0);
+        let plan = self.plan;
+        let n = frame.positions.len();
+        let mut keep = vec![true; n];
+        for w in &plan.wilts {
+            for &node in &w.nodes {
+                keep[node as usize] = false;
+            }
+        }
+        let mut new_id = vec![NONE; n];
+        let mut nodes = Vec::new();
+        for i in 0..n {
+            if !keep[i] {
+                continue;
+            }
+            new_id[i] = nodes.len() as u32;
+            nodes.push(Node {
+                position: frame.positions[i],
+                radius: frame.radii[i],
+                parent: plan.topology.parents[i].map(|p| new_id[p as usize]),
+            });
+        }
+        let mut leaves = Vec::new();
+        for (l, leaf) in tree.leaves().iter().enumerate() {
+            if plan.leaf_wilts[l] || new_id[leaf.branch as usize] == NONE {
+                continue;
+            }
+            let fl = &frame.leaves[l];
+            let node = leaf.branch as usize;
+            let parent = plan.topology.parents[node].map_or(node, |p| p as usize);
+            let base = frame.positions[parent].lerp(frame.positions[node], leaf.t);
+            leaves.push(Leaf {
+                branch: new_id[node],
+                offset: fl.anchor - base,
+                orientation: fl.orientation,
+                ..*leaf
+            });
+        }
+        let parts = TreeParts {
+            name: format!("{}-sketched", tree.name()),
+            nodes,
+            leaves,
+            materials: Materials {
+                bark: tree.materials().bark.clone(),
+                leaves: tree
+                    .materials()
+                    .leaves
+                    .iter()
+                    .map(LeafMaterial::clone)
+                    .collect(),
+            },
+            ground_truth: None,
+        };
+        Tree::new(parts, &treemorph_tree::Limits::default())
+            .map_err(|e| SketchError::Internal(format!("the sketched tree is invalid: {e}")))
+    }
+}

@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use thiserror::Error;
+use treemorph_import::{ImportError, ImportOptions};
 use treemorph_tree::{Limits, Tree};
 
 /// The kinds of tree file treemorph reads.
@@ -99,14 +100,23 @@ pub enum LoadError {
         /// The cause.
         source: treemorph_tree::json::FormatError,
     },
-    /// A glTF file that could not be turned into a tree.
-    #[error("{path}: {message}")]
+    /// A GLB or glTF file that could not be turned into a tree.
+    #[error("{path}: {source}")]
     Gltf {
         /// The file.
         path: PathBuf,
-        /// The cause.
-        message: String,
+        /// The cause, with its stable code ([`ImportError::code`]).
+        source: ImportError,
     },
+}
+
+/// Import options with the tree limits applied.
+pub fn import_options(limits: &Limits) -> ImportOptions {
+    let mut options = ImportOptions::default();
+    options.max_nodes = limits.max_nodes;
+    options.max_leaves = limits.max_leaves;
+    options.max_texture_side = limits.max_texture_side;
+    options
 }
 
 /// Reads a tree from bytes of any supported kind.
@@ -127,26 +137,15 @@ pub fn tree_from_bytes(
                 }
             })?
         }
-        TreeFileKind::Glb => match treemorph_gltf::read_embedded_tree(bytes, limits) {
-            Ok(Some(tree)) => tree,
-            Ok(None) => {
-                return Err(LoadError::Gltf {
+        // The importer reads our own GLBs' embedded tree exactly and
+        // reconstructs a skeleton from the meshes of any other file.
+        TreeFileKind::Glb | TreeFileKind::Gltf => {
+            treemorph_import::import(bytes, &import_options(limits))
+                .map_err(|source| LoadError::Gltf {
                     path: path.to_owned(),
-                    message: "this GLB carries no treemorph skeleton".into(),
-                });
-            }
-            Err(e) => {
-                return Err(LoadError::Gltf {
-                    path: path.to_owned(),
-                    message: e.to_string(),
-                });
-            }
-        },
-        TreeFileKind::Gltf => {
-            return Err(LoadError::Gltf {
-                path: path.to_owned(),
-                message: "glTF JSON import is not available in this build".into(),
-            });
+                    source,
+                })?
+                .tree
         }
     };
     Ok((tree, kind))
@@ -207,6 +206,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
     let mut tmp = tempfile::NamedTempFile::new_in(dir)?;
     std::io::Write::write_all(&mut tmp, bytes)?;
+    // Temporary files are created private (0600); outputs are ordinary
+    // files that other users and tools may read.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))?;
+    }
     tmp.as_file().sync_all()?;
     tmp.persist(path).map_err(|e| e.error)?;
     Ok(())
@@ -230,6 +237,25 @@ mod tests {
         assert_eq!(sniff(b"{broken"), Some(TreeFileKind::TreeJson));
         assert_eq!(sniff(b"\x89PNG"), None);
         assert_eq!(sniff(b""), None);
+    }
+
+    /// Regression: outputs were left with the temporary file's 0600 mode.
+    #[cfg(unix)]
+    #[test]
+    fn atomic_writes_leave_readable_files_and_no_temporaries() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub/out.json");
+        write_atomic(&path, b"{}").unwrap();
+        write_atomic(&path, b"{\"a\":1}").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"{\"a\":1}");
+        let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o644);
+        let names: Vec<_> = std::fs::read_dir(path.parent().unwrap())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("out.json")]);
     }
 
     #[test]

@@ -51,7 +51,15 @@
 //! - The encoder picks the predictor per block by counting non-zero
 //!   residuals (a cheap, vectorisable proxy for the compressed size), and
 //!   encodes a frame in one pass over blocks of 4096 vertices so its
-//!   working set stays in L1.
+//!   working set stays in L1. Meshes of 65,536 vertices or more are split
+//!   into runs of whole blocks encoded on parallel threads (one per core,
+//!   at most 8); the runs are appended in order and each run starts its
+//!   predictor from the previous vertex's difference, so the bytes are
+//!   exactly those of a sequential pass. Past a few hundred thousand
+//!   vertices the pass is bound by memory bandwidth (it reads every
+//!   position and the decoder's state once and writes the new state), and
+//!   zstd, which cannot be split without changing the format, becomes the
+//!   larger cost.
 //!
 //! # Performance
 //! [`bench::run`] measures a synthetic smoothly swaying animation; for

@@ -8,9 +8,12 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod animate;
 mod generate;
+mod import;
 mod inspect;
 mod progress;
+mod serve;
 
 /// Exit code: an operation failed.
 pub const EXIT_FAILURE: u8 = 1;
@@ -43,8 +46,16 @@ enum Command {
     Generate(generate::Args),
     /// Print counts, bounds, height and depth of a tree file (GLB, glTF or JSON).
     Inspect(inspect::Args),
+    /// Turn a GLB or glTF tree mesh (branches plus leaf quads) into a tree file.
+    Import(import::Args),
+    /// Morph one tree into another and write the frames.
+    Morph(animate::MorphArgs),
+    /// Animate a tree into a crown shape sketched from a camera.
+    Sketch(animate::SketchArgs),
     /// Run the benchmarks and print a table of named figures.
     Bench(crate::bench::Args),
+    /// Run the HTTP service (API and workers; see `treemorph serve --help`).
+    Serve(Box<crate::config::Settings>),
 }
 
 /// A command's failure: what to print and which exit code to use.
@@ -81,7 +92,11 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Generate(args) => generate::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Import(args) => import::run(&args),
+        Command::Morph(args) => animate::morph(&args),
+        Command::Sketch(args) => animate::sketch(&args),
         Command::Bench(args) => crate::bench::run(&args),
+        Command::Serve(settings) => serve::run(*settings),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

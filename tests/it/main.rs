@@ -1,1 +1,14 @@
-mod smoke {}
+//! Integration tests of `treemorph serve`: real servers on port 0 (in
+//! process, with a test runner injected through the app state), and for the
+//! crash and shutdown tests the real binary.
+
+mod common;
+mod e2e;
+mod jobs;
+mod openapi;
+mod process;
+mod scaleout;
+mod security;
+mod streaming;
+mod trees;
+mod webhooks;

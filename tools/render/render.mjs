@@ -64,7 +64,8 @@ window.renderGlb = async (url, opts) => {
   const clip = gltf.animations[0];
   if (clip) mixer.clipAction(clip).play();
   const times = [];
-  if (opts.frames && clip) for (let i = 0; i < cols; i++) times.push(clip.duration * i / Math.max(1, cols - 1));
+  // A looping clip wraps at its duration: sample the last instant just before.
+  if (opts.frames && clip) for (let i = 0; i < cols; i++) times.push(Math.min(clip.duration * i / Math.max(1, cols - 1), clip.duration * 0.9999));
   else times.push(opts.time ?? 0);
   // Frame the union of the bounds at every instant so a strip keeps one scale.
   const box = new THREE.Box3();

@@ -51,7 +51,9 @@ impl EncoderOptions {
 /// The encoder tracks the grid coordinates the decoder will hold after each
 /// frame and sends differences against those, so quantisation error never
 /// accumulates. Its buffers are kept between frames: after the first frame,
-/// encoding allocates nothing unless `out` must grow.
+/// encoding allocates nothing unless `out` must grow (meshes of 65,536
+/// vertices or more are encoded on scoped worker threads, one per core, at
+/// most 8, started for each frame; their buffers are kept too).
 pub struct Encoder {
     header: StreamHeader,
     header_bytes: Vec<u8>,
@@ -60,8 +62,8 @@ pub struct Encoder {
     state: Vec<[Vec<i32>; 3]>,
     /// The frame being encoded, same layout; swapped with `state` on success.
     next: Vec<[Vec<i32>; 3]>,
-    deltas: Vec<i32>,
-    zigzags: Vec<u32>,
+    /// One per worker thread (the first is the calling thread's).
+    scratch: Vec<Scratch>,
     payload: Vec<u8>,
     compressed: Vec<u8>,
     next_index: u32,
@@ -115,6 +117,13 @@ impl Encoder {
         // Sized for the largest possible frame, so encoding never
         // reallocates.
         let max_payload = Self::max_frame_payload(state.iter().map(|axes| axes[0].len()));
+        let workers = std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .clamp(1, MAX_WORKERS);
+        let largest = state.iter().map(|axes| axes[0].len()).max().unwrap_or(0);
+        let run_payload = Self::max_frame_payload(std::iter::once(
+            largest.div_ceil(BLOCK).div_ceil(workers) * BLOCK,
+        ));
         let compressed_capacity = if compressor.is_some() {
             zstd::zstd_safe::compress_bound(max_payload)
         } else {
@@ -126,8 +135,14 @@ impl Encoder {
             header,
             header_bytes,
             compressor,
-            deltas: vec![0; BLOCK],
-            zigzags: vec![0; BLOCK],
+            scratch: (0..workers)
+                .map(|w| Scratch {
+                    deltas: vec![0; BLOCK],
+                    zigzags: vec![0; BLOCK],
+                    // The calling thread writes into `payload` itself.
+                    out: Vec::with_capacity(if w == 0 { 0 } else { run_payload }),
+                })
+                .collect(),
             payload: Vec::with_capacity(max_payload),
             compressed: Vec::with_capacity(compressed_capacity),
             next_index: 0,
@@ -168,6 +183,21 @@ impl Encoder {
         index: u32,
         t: f32,
         positions: &[&[[f32; 3]]],
+        leaf_blend: f32,
+        out: &mut Vec<u8>,
+    ) -> Result<(), DeltaError> {
+        self.encode_frame_of(index, t, positions, leaf_blend, out)
+    }
+
+    /// [`encode_frame`](Self::encode_frame) for positions of any point
+    /// type that converts to `[f32; 3]` (a vector type with three `f32`
+    /// fields, such as `glam::Vec3`), so a mesher's buffers are encoded
+    /// without copying them first.
+    pub fn encode_frame_of<P: Copy + Into<[f32; 3]> + Sync>(
+        &mut self,
+        index: u32,
+        t: f32,
+        positions: &[&[P]],
         leaf_blend: f32,
         out: &mut Vec<u8>,
     ) -> Result<(), DeltaError> {
@@ -214,50 +244,52 @@ impl Encoder {
                     mesh.len()
                 )));
             }
-            // One pass over the frame, a block of vertices at a time, so
-            // the deltas stay in L1: quantise into `next`, then write the
-            // block's x, y and z differences from `state`.
-            let mut in_range = true;
-            let mut before = [0i32; 3];
-            for start in (0..n).step_by(BLOCK) {
-                let end = (start + BLOCK).min(n);
+            // Blocks are independent but for the value each one's
+            // predictor starts from, so a large mesh is split into runs of
+            // whole blocks encoded on parallel threads, each into its own
+            // buffer, appended in order: the bytes are exactly those of
+            // one sequential pass.
+            let blocks = n.div_ceil(BLOCK);
+            let runs = if n >= PARALLEL_MIN_VERTICES {
+                self.scratch.len().min(blocks)
+            } else {
+                1
+            };
+            let in_range = if runs <= 1 {
                 let [xs, ys, zs] = next;
-                let (xs, ys, zs) = (
-                    &mut xs[start..end],
-                    &mut ys[start..end],
-                    &mut zs[start..end],
-                );
-                for (((p, x), y), z) in mesh[start..end].iter().zip(xs).zip(ys).zip(zs) {
-                    let c = [0, 1, 2].map(|a| quantiser.coordinate(a, p[a]));
-                    in_range &= Quantiser::in_range(c[0])
-                        & Quantiser::in_range(c[1])
-                        & Quantiser::in_range(c[2]);
-                    *x = Quantiser::round(c[0]);
-                    *y = Quantiser::round(c[1]);
-                    *z = Quantiser::round(c[2]);
-                }
-                for axis in 0..3 {
-                    let deltas = &mut self.deltas[..end - start];
-                    for ((d, &new), &old) in deltas
-                        .iter_mut()
-                        .zip(&next[axis][start..end])
-                        .zip(&state[axis][start..end])
-                    {
-                        *d = new.wrapping_sub(old);
-                    }
-                    write_block(&mut self.payload, deltas, before[axis], &mut self.zigzags);
-                    before[axis] = deltas[deltas.len() - 1];
-                }
-            }
+                let [sx, sy, sz] = state;
+                let s = &mut self.scratch[0];
+                encode_run(
+                    &quantiser,
+                    mesh,
+                    [xs, ys, zs],
+                    [sx, sy, sz],
+                    [0; 3],
+                    &mut s.deltas,
+                    &mut s.zigzags,
+                    &mut self.payload,
+                )
+            } else {
+                let run_len = blocks.div_ceil(runs) * BLOCK;
+                encode_parallel(
+                    &quantiser,
+                    mesh,
+                    next,
+                    state,
+                    run_len,
+                    &mut self.scratch[..runs],
+                    &mut self.payload,
+                )
+            };
             if !in_range {
                 let grid = self.header.grid;
                 let i = mesh
                     .iter()
-                    .position(|p| grid.quantise(*p).is_none())
+                    .position(|&p| grid.quantise(p.into()).is_none())
                     .unwrap_or(0);
                 return Err(invalid(format!(
                     "mesh {m} position {i} ({:?}) is not finite or off the grid",
-                    mesh.get(i)
+                    mesh.get(i).map(|&p| p.into())
                 )));
             }
         }
@@ -324,13 +356,182 @@ impl Encoder {
                 .sum::<usize>()
     }
 
+    /// Encodes on at most `workers` threads from now on (tests compare the
+    /// parallel encoding with the sequential one).
+    #[cfg(test)]
+    pub(crate) fn limit_workers(&mut self, workers: usize) {
+        self.scratch.truncate(workers.max(1));
+    }
+
     /// Capacities of the per-frame buffers (for the no-reallocation test).
     #[cfg(test)]
     pub(crate) fn buffer_capacities(&self) -> [usize; 3] {
         [
-            self.zigzags.capacity(),
+            self.scratch
+                .iter()
+                .map(|s| s.zigzags.capacity() + s.out.capacity())
+                .sum(),
             self.payload.capacity(),
             self.compressed.capacity(),
         ]
     }
+}
+
+/// Meshes with fewer vertices are encoded on the calling thread alone.
+const PARALLEL_MIN_VERTICES: usize = 1 << 16;
+/// Most threads one frame is encoded on.
+const MAX_WORKERS: usize = 8;
+
+/// Buffers of one encoding thread.
+struct Scratch {
+    deltas: Vec<i32>,
+    zigzags: Vec<u32>,
+    /// The run's bytes (unused by the calling thread).
+    out: Vec<u8>,
+}
+
+/// Encodes a run of whole blocks of one mesh — one pass, a block of
+/// vertices at a time, so the deltas stay in L1: quantise into `next`,
+/// then write the block's x, y and z differences from `state`. `before`
+/// holds the differences of the vertex preceding the run (0 at the start
+/// of a mesh). Returns whether every position was on the grid.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn encode_run<P: Copy + Into<[f32; 3]>>(
+    quantiser: &Quantiser,
+    mesh: &[P],
+    next: [&mut [i32]; 3],
+    state: [&[i32]; 3],
+    mut before: [i32; 3],
+    deltas: &mut [i32],
+    zigzags: &mut [u32],
+    out: &mut Vec<u8>,
+) -> bool {
+    let n = mesh.len();
+    let mut in_range = true;
+    let [xs_all, ys_all, zs_all] = next;
+    for start in (0..n).step_by(BLOCK) {
+        let end = (start + BLOCK).min(n);
+        let (xs, ys, zs) = (
+            &mut xs_all[start..end],
+            &mut ys_all[start..end],
+            &mut zs_all[start..end],
+        );
+        for (((&p, x), y), z) in mesh[start..end].iter().zip(xs).zip(ys).zip(zs) {
+            let p: [f32; 3] = p.into();
+            let c = [0, 1, 2].map(|a| quantiser.coordinate(a, p[a]));
+            in_range &=
+                Quantiser::in_range(c[0]) & Quantiser::in_range(c[1]) & Quantiser::in_range(c[2]);
+            *x = Quantiser::round(c[0]);
+            *y = Quantiser::round(c[1]);
+            *z = Quantiser::round(c[2]);
+        }
+        let news = [
+            &xs_all[start..end],
+            &ys_all[start..end],
+            &zs_all[start..end],
+        ];
+        for axis in 0..3 {
+            let deltas = &mut deltas[..end - start];
+            for ((d, &new), &old) in deltas
+                .iter_mut()
+                .zip(news[axis])
+                .zip(&state[axis][start..end])
+            {
+                *d = new.wrapping_sub(old);
+            }
+            write_block(out, deltas, before[axis], zigzags);
+            before[axis] = deltas[deltas.len() - 1];
+        }
+    }
+    in_range
+}
+
+/// Encodes one mesh as runs of `run_len` vertices (whole blocks) on
+/// `scratch.len()` threads, the first run on the calling thread straight
+/// into `payload`, the others into their scratch buffers, appended after.
+#[allow(clippy::too_many_arguments)]
+fn encode_parallel<P: Copy + Into<[f32; 3]> + Sync>(
+    quantiser: &Quantiser,
+    mesh: &[P],
+    next: &mut [Vec<i32>; 3],
+    state: &[Vec<i32>; 3],
+    run_len: usize,
+    scratch: &mut [Scratch],
+    payload: &mut Vec<u8>,
+) -> bool {
+    let [xs, ys, zs] = next;
+    let runs = xs
+        .chunks_mut(run_len)
+        .zip(ys.chunks_mut(run_len))
+        .zip(zs.chunks_mut(run_len))
+        .zip(scratch.iter_mut())
+        .enumerate();
+    let ok = std::thread::scope(|scope| {
+        let mut first = None;
+        let mut handles = Vec::with_capacity(MAX_WORKERS);
+        for (r, (((x, y), z), s)) in runs {
+            let start = r * run_len;
+            let end = start + x.len();
+            // The differences of the vertex before the run, computed as
+            // the sequential pass would (without a range check: an
+            // off-grid vertex fails the frame anyway).
+            let before = if start == 0 {
+                [0; 3]
+            } else {
+                let p: [f32; 3] = mesh[start - 1].into();
+                [0, 1, 2].map(|a| {
+                    Quantiser::round(quantiser.coordinate(a, p[a]))
+                        .wrapping_sub(state[a][start - 1])
+                })
+            };
+            let run_state = [
+                &state[0][start..end],
+                &state[1][start..end],
+                &state[2][start..end],
+            ];
+            let run_mesh = &mesh[start..end];
+            if r == 0 {
+                first = Some((run_mesh, [x, y, z], run_state, s));
+            } else {
+                handles.push(scope.spawn(move || {
+                    s.out.clear();
+                    encode_run(
+                        quantiser,
+                        run_mesh,
+                        [x, y, z],
+                        run_state,
+                        before,
+                        &mut s.deltas,
+                        &mut s.zigzags,
+                        &mut s.out,
+                    )
+                }));
+            }
+        }
+        let mut ok = match first {
+            Some((run_mesh, next, run_state, s)) => encode_run(
+                quantiser,
+                run_mesh,
+                next,
+                run_state,
+                [0; 3],
+                &mut s.deltas,
+                &mut s.zigzags,
+                payload,
+            ),
+            None => true,
+        };
+        for h in handles {
+            // A panicking worker is a bug; fail the frame rather than the
+            // process.
+            ok &= h.join().unwrap_or(false);
+        }
+        ok
+    });
+    let runs = mesh.len().div_ceil(run_len);
+    for s in &scratch[1..runs] {
+        payload.extend_from_slice(&s.out);
+    }
+    ok
 }

@@ -676,6 +676,52 @@ fn a_mesh_larger_than_one_block_round_trips() {
 }
 
 #[test]
+fn parallel_encoding_writes_the_bytes_of_a_sequential_pass() {
+    // 3,000 chains: 180,000 vertices, enough for several runs of blocks,
+    // with a partial last block; one position far off so a run boundary
+    // carries a large predictor value.
+    let s = Synthetic::new(3_000, 3);
+    let mut streams = Vec::new();
+    for workers in [1, 2, 3, 7] {
+        let mut encoder = Encoder::new(s.header().clone(), &EncoderOptions::default()).unwrap();
+        encoder.limit_workers(workers);
+        let mut stream = encoder.header_bytes().to_vec();
+        let mut p = Vec::new();
+        for i in 0..3 {
+            s.positions(time(i, 3), &mut p);
+            p[0][BLOCK * 7 - 1][1] += 3.0;
+            encoder
+                .encode_frame(i, time(i, 3), &slices(&p), 0.0, &mut stream)
+                .unwrap();
+        }
+        encoder.finish(&mut stream).unwrap();
+        streams.push(stream);
+    }
+    for (workers, stream) in [2, 3, 7].iter().zip(&streams[1..]) {
+        assert!(*stream == streams[0], "{workers} workers");
+    }
+    decode_all(&streams[0], &DecoderOptions::default()).unwrap();
+}
+
+#[test]
+fn an_off_grid_position_in_a_parallel_run_is_refused() {
+    let s = Synthetic::new(3_000, 2);
+    let mut encoder = Encoder::new(s.header().clone(), &EncoderOptions::default()).unwrap();
+    encoder.limit_workers(3);
+    let mut p = Vec::new();
+    s.positions(0.0, &mut p);
+    let last = p[0].len() - 1;
+    p[0][last] = [f32::NAN, 0.0, 0.0];
+    let mut out = Vec::new();
+    assert!(matches!(
+        encoder.encode_frame(0, 0.0, &slices(&p), 0.0, &mut out),
+        Err(DeltaError::InvalidFrame { .. })
+    ));
+    assert!(out.is_empty());
+    assert_eq!(encoder.next_index(), 0);
+}
+
+#[test]
 fn grid_error_bound_holds_for_points_inside_the_bounds() {
     let mut runner = proptest::test_runner::TestRunner::default();
     runner

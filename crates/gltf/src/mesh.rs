@@ -75,14 +75,34 @@
 //! topology order (leaf `i` owns vertices `4i..4i+4`); the index buffer is
 //! sorted into one contiguous [`MeshGroup`] per distinct material pair so an
 //! encoder can emit one primitive per material. [`LeafShape`] selects the
-//! shape; only quads exist today.
+//! shape: quads, or [`LeafShape::Contour`] — each leaf the outline of its
+//! material's texture ([`crate::contour`]) as a fan of `K` triangles
+//! around a centre on the midrib (`K + 1` vertices: the centre, then the
+//! rim counter-clockwise from the blade base), morphing from its first
+//! material's outline to its second's by the leaf's blend, with UVs from
+//! the first material's outline in every frame.
+//!
+//! # Speed
+//! A frame is meshed in parallel (rayon): strands in batches of about
+//! 16,000 vertices, leaves in batches of 2,048, each batch writing its own
+//! slice of the buffers, so the output does not depend on the thread
+//! count. Per ring the dependency chain from one ring's frame to the next
+//! has one division and no square root (tangents are computed in a first
+//! pass over a run of nodes, where their square roots overlap), and
+//! per-vertex work and bounds use SIMD lanes. Thin twigs cost the most
+//! vertices in large trees: `MeshOptions::default().with_sides(3, 10)`
+//! meshes a 20,000-chain tree with ~20 % fewer branch vertices than the
+//! default 4–12.
 
 use std::f32::consts::TAU;
 
-use glam::{Quat, Vec2, Vec3, Vec4};
+use glam::{Mat3A, Quat, Vec2, Vec3, Vec3A, Vec4};
+use rayon::prelude::*;
 use thiserror::Error;
 use treemorph_tree::frame::FrameMismatch;
 use treemorph_tree::{Aabb, Frame, FrameTopology, NodeId};
+
+use crate::contour::LeafContour;
 
 /// Largest side count accepted for [`MeshOptions::max_sides`].
 pub const MAX_SIDES: u32 = 64;
@@ -94,6 +114,16 @@ pub enum LeafShape {
     /// A textured quad of 4 vertices: the papers' billboard leaf.
     #[default]
     Quad,
+    /// The blade outline of each leaf material's texture with `points`
+    /// rim points ([`crate::contour`]), as a fan of `points` triangles
+    /// around a centre on the midrib (`points + 1` vertices). A leaf whose
+    /// two materials differ morphs from the first material's outline to
+    /// the second's by its blend. `points` must be even, in
+    /// [`contour::MIN_POINTS`](crate::contour::MIN_POINTS)..=[`contour::MAX_POINTS`](crate::contour::MAX_POINTS).
+    Contour {
+        /// Rim points per leaf (e.g. 24).
+        points: u32,
+    },
 }
 
 impl LeafShape {
@@ -101,6 +131,7 @@ impl LeafShape {
     pub fn vertices_per_leaf(self) -> usize {
         match self {
             LeafShape::Quad => 4,
+            LeafShape::Contour { points } => points as usize + 1,
         }
     }
 
@@ -108,6 +139,7 @@ impl LeafShape {
     pub fn indices_per_leaf(self) -> usize {
         match self {
             LeafShape::Quad => 6,
+            LeafShape::Contour { points } => 3 * points as usize,
         }
     }
 }
@@ -149,12 +181,23 @@ impl MeshOptions {
         self
     }
 
+    /// These options with [`MeshOptions::leaf_shape`] set.
+    #[must_use]
+    pub fn with_leaf_shape(mut self, shape: LeafShape) -> MeshOptions {
+        self.leaf_shape = shape;
+        self
+    }
+
     pub(crate) fn check(&self) -> Result<(), MeshError> {
         if self.min_sides < 3 || self.max_sides < self.min_sides || self.max_sides > MAX_SIDES {
             return Err(MeshError::InvalidOptions(format!(
                 "sides must satisfy 3 ≤ min_sides ≤ max_sides ≤ {MAX_SIDES}; got {}..{}",
                 self.min_sides, self.max_sides
             )));
+        }
+        if let LeafShape::Contour { points } = self.leaf_shape {
+            crate::contour::check_points(points)
+                .map_err(|e| MeshError::InvalidOptions(e.to_string()))?;
         }
         if !(self.min_uv_radius.is_finite() && self.min_uv_radius > 0.0) {
             return Err(MeshError::InvalidOptions(format!(
@@ -186,6 +229,18 @@ pub enum MeshError {
     /// A frame (or the reference frame) does not fit the topology.
     #[error(transparent)]
     Frame(#[from] FrameMismatch),
+    /// A leaf names a leaf material the topology does not have.
+    #[error(
+        "leaf {leaf} uses materials {materials:?}, but the topology has {count} leaf materials"
+    )]
+    LeafMaterialOutOfRange {
+        /// Index of the leaf.
+        leaf: usize,
+        /// Its material pair.
+        materials: [u32; 2],
+        /// Leaf materials in the topology.
+        count: usize,
+    },
     /// The mesh would need more vertices or indices than `u32` can count.
     #[error(
         "the mesh would have {count} {what}; at most {} are supported",
@@ -339,6 +394,11 @@ impl StrandPlan {
 #[derive(Clone, Debug)]
 pub struct BranchMesher {
     plans: Vec<StrandPlan>,
+    /// Plan indices where the parallel batches of [`BranchMesher::mesh`]
+    /// start, then `plans.len()`: consecutive strands holding about
+    /// [`BATCH_VERTICES`] vertices each, so a frame is split into enough
+    /// pieces for every core without a task per strand.
+    batches: Vec<u32>,
     nodes: Vec<NodeId>,
     node_count: usize,
     /// `(cos, sin)` tables: sides `s` starts at `trig_offsets[s]` and has
@@ -457,8 +517,20 @@ impl BranchMesher {
             }
         }
 
+        let mut batches = vec![0u32];
+        let mut in_batch = 0usize;
+        for (i, plan) in plans.iter().enumerate() {
+            if in_batch >= BATCH_VERTICES {
+                batches.push(i as u32);
+                in_batch = 0;
+            }
+            in_batch += plan.vertex_count();
+        }
+        batches.push(plans.len() as u32);
+
         let mut mesher = BranchMesher {
             plans,
+            batches,
             nodes,
             node_count: count,
             trig,
@@ -480,6 +552,20 @@ impl BranchMesher {
         self.buffers.positions.len()
     }
 
+    /// Recomputes the bark texture coordinates from `uv_frame` (as `new`
+    /// does), for callers that learn the sequence's first frame only after
+    /// planning the meshes.
+    pub fn set_uv_frame(
+        &mut self,
+        uv_frame: &Frame,
+        options: &MeshOptions,
+    ) -> Result<(), MeshError> {
+        options.check()?;
+        check_nodes(uv_frame, self.node_count)?;
+        self.write_uvs(uv_frame, options.min_uv_radius);
+        Ok(())
+    }
+
     /// Number of strands that have a tube.
     pub fn tube_count(&self) -> usize {
         self.plans.len()
@@ -492,13 +578,26 @@ impl BranchMesher {
     }
 
     /// Meshes one frame: overwrites positions, normals and bounds.
+    ///
+    /// Strands are swept in parallel (rayon) in batches of consecutive
+    /// strands; each batch writes its own slice of the buffers, so the
+    /// result does not depend on the number of threads.
     pub fn mesh(&mut self, frame: &Frame) -> Result<&MeshBuffers, MeshError> {
         check_nodes(frame, self.node_count)?;
-        let mut bounds = Aabb::EMPTY;
-        for p in 0..self.plans.len() {
-            self.sweep(p, frame, &mut bounds);
-        }
-        self.buffers.bounds = bounds;
+        let sweep = Sweep {
+            plans: &self.plans,
+            nodes: &self.nodes,
+            trig: &self.trig,
+            trig_offsets: &self.trig_offsets,
+            frame,
+        };
+        let buffers = &mut self.buffers;
+        let bounds = if self.plans.is_empty() {
+            Aabb::EMPTY
+        } else {
+            sweep.batches(&self.batches, &mut buffers.positions, &mut buffers.normals)
+        };
+        buffers.bounds = bounds;
         Ok(&self.buffers)
     }
 
@@ -569,9 +668,109 @@ impl BranchMesher {
             }
         }
     }
+}
 
-    fn sweep(&mut self, p: usize, frame: &Frame, bounds: &mut Aabb) {
-        let plan = &self.plans[p];
+/// Vertices per parallel batch of [`BranchMesher::mesh`]: large enough that
+/// scheduling costs nothing next to the work, small enough that a 20,000-
+/// chain tree splits into dozens of batches for work stealing.
+const BATCH_VERTICES: usize = 16_384;
+
+/// The bounds of `points`, exact (the min and max of the stored floats, as
+/// glTF POSITION accessors need), in a form that vectorises: twelve lanes
+/// (four points) of plain comparisons, which finite input allows.
+pub(crate) fn bounds_of(points: &[Vec3]) -> Aabb {
+    #[inline(always)]
+    fn lanes(p: &[Vec3]) -> [f32; 12] {
+        [
+            p[0].x, p[0].y, p[0].z, p[1].x, p[1].y, p[1].z, p[2].x, p[2].y, p[2].z, p[3].x, p[3].y,
+            p[3].z,
+        ]
+    }
+    let mut lo = [f32::INFINITY; 12];
+    let mut hi = [f32::NEG_INFINITY; 12];
+    let chunks = points.chunks_exact(4);
+    let rest = chunks.remainder();
+    for c in chunks {
+        let v = lanes(c);
+        for i in 0..12 {
+            lo[i] = if v[i] < lo[i] { v[i] } else { lo[i] };
+            hi[i] = if v[i] > hi[i] { v[i] } else { hi[i] };
+        }
+    }
+    let mut bounds = Aabb::EMPTY;
+    for k in 0..4 {
+        let (a, b) = (
+            Vec3::new(lo[3 * k], lo[3 * k + 1], lo[3 * k + 2]),
+            Vec3::new(hi[3 * k], hi[3 * k + 1], hi[3 * k + 2]),
+        );
+        if a.x <= b.x {
+            bounds = bounds.union(Aabb { min: a, max: b });
+        }
+    }
+    rest.iter().fold(bounds, |b, &p| b.with_point(p))
+}
+
+/// `v` rotated by the shortest arc taking unit vector `from` to unit vector
+/// `to` (Rodrigues' formula with the unnormalised axis `from × to`: no
+/// square root or trigonometry, which matters once per ring).
+#[inline]
+fn rotate_arc(from: Vec3, to: Vec3, v: Vec3) -> Vec3 {
+    let c = from.dot(to);
+    if c > -0.999_9 {
+        let k = from.cross(to);
+        v * c + k.cross(v) + k * (k.dot(v) / (1.0 + c))
+    } else {
+        // Nearly opposite: any half-turn axis will do; glam picks one.
+        Quat::from_rotation_arc(from, to) * v
+    }
+}
+
+/// What sweeping a frame reads; shared by the parallel batches.
+#[derive(Clone, Copy)]
+struct Sweep<'a> {
+    plans: &'a [StrandPlan],
+    nodes: &'a [NodeId],
+    trig: &'a [[f32; 2]],
+    trig_offsets: &'a [u32],
+    frame: &'a Frame,
+}
+
+impl Sweep<'_> {
+    /// Sweeps the strands of batches `bounds[0]..bounds[last]` (plan
+    /// indices) into `positions` and `normals`, which start at the first
+    /// plan's first vertex; splits in halves with `rayon::join` (no
+    /// allocation) and returns the bounds of the written vertices.
+    fn batches(&self, batches: &[u32], positions: &mut [Vec3], normals: &mut [Vec3]) -> Aabb {
+        if batches.len() <= 2 {
+            let (lo, hi) = (batches[0] as usize, batches[batches.len() - 1] as usize);
+            let base = self.plans[lo].first_vertex as usize;
+            let mut bounds = Aabb::EMPTY;
+            for plan in &self.plans[lo..hi] {
+                let start = plan.first_vertex as usize - base;
+                let end = start + plan.vertex_count();
+                bounds = bounds.union(self.strand(
+                    plan,
+                    &mut positions[start..end],
+                    &mut normals[start..end],
+                ));
+            }
+            return bounds;
+        }
+        let mid = batches.len() / 2;
+        let split = (self.plans[batches[mid] as usize].first_vertex
+            - self.plans[batches[0] as usize].first_vertex) as usize;
+        let (p0, p1) = positions.split_at_mut(split);
+        let (n0, n1) = normals.split_at_mut(split);
+        let (a, b) = rayon::join(
+            || self.batches(&batches[..=mid], p0, n0),
+            || self.batches(&batches[mid..], p1, n1),
+        );
+        a.union(b)
+    }
+
+    /// Sweeps one strand into its own vertices (`positions` and `normals`
+    /// hold exactly the plan's vertex count).
+    fn strand(&self, plan: &StrandPlan, positions: &mut [Vec3], normals: &mut [Vec3]) -> Aabb {
         let a = plan.first_node as usize;
         let ids = &self.nodes[a..a + plan.node_count as usize];
         let k = ids.len();
@@ -579,9 +778,7 @@ impl BranchMesher {
         let stride = sides + 1;
         let t0 = self.trig_offsets[sides] as usize;
         let trig = &self.trig[t0..t0 + stride];
-        let base = plan.first_vertex as usize;
-        let positions = &mut self.buffers.positions;
-        let normals = &mut self.buffers.normals;
+        let frame = self.frame;
         let at = |i: usize| frame.positions[ids[i] as usize];
 
         // Direction used where the strand defines none (zero-length
@@ -589,80 +786,154 @@ impl BranchMesher {
         let fallback = (0..k - 1)
             .find_map(|i| (at(i + 1) - at(i)).try_normalize())
             .unwrap_or(Vec3::Y);
+        // Two passes per run of nodes: first the tangents, whose square
+        // roots do not depend on each other and so overlap in the CPU;
+        // then the frames, whose ring-to-ring dependency chain is kept
+        // free of square roots and divisions but one.
+        const RUN: usize = 32;
+        let mut tangents = [Vec3::ZERO; RUN];
         let mut incoming: Option<Vec3> = None;
         let mut tangent_prev = fallback;
         let mut normal = Vec3::X;
         let mut last = (Vec3::ZERO, 0.0f32);
-        for i in 0..k {
-            let point = at(i);
-            let outgoing = (i + 1 < k).then(|| {
-                (at(i + 1) - point)
-                    .try_normalize()
-                    .unwrap_or(incoming.unwrap_or(fallback))
-            });
-            let tangent = match (incoming, outgoing) {
-                (Some(a), Some(b)) => (a + b).try_normalize().unwrap_or(b),
-                (Some(a), None) => a,
-                (None, Some(b)) => b,
-                (None, None) => fallback,
-            };
-            let turned = if i == 0 {
-                Quat::from_rotation_arc(Vec3::Y, tangent) * Vec3::X
-            } else {
-                Quat::from_rotation_arc(tangent_prev, tangent) * normal
-            };
-            normal = (turned - tangent * turned.dot(tangent))
-                .try_normalize()
-                .unwrap_or_else(|| tangent.any_orthonormal_vector());
-            let binormal = tangent.cross(normal);
-            let r = Self::ring_radius(plan, ids, &frame.radii, i);
-            let ring = base + i * stride;
-            for (j, &[cos, sin]) in trig.iter().enumerate() {
-                let dir = normal * cos + binormal * sin;
-                let v = point + dir * r;
-                positions[ring + j] = v;
-                normals[ring + j] = dir;
-                *bounds = bounds.with_point(v);
+        let (mut lo, mut hi) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        let mut start = 0;
+        while start < k {
+            let n = (k - start).min(RUN);
+            for (j, tangent) in tangents[..n].iter_mut().enumerate() {
+                let i = start + j;
+                let outgoing = (i + 1 < k).then(|| {
+                    (at(i + 1) - at(i))
+                        .try_normalize()
+                        .unwrap_or(incoming.unwrap_or(fallback))
+                });
+                *tangent = match (incoming, outgoing) {
+                    (Some(a), Some(b)) => (a + b).try_normalize().unwrap_or(b),
+                    (Some(a), None) => a,
+                    (None, Some(b)) => b,
+                    (None, None) => fallback,
+                };
+                incoming = outgoing;
             }
-            incoming = outgoing;
-            tangent_prev = tangent;
-            last = (point, r);
+            for (j, &tangent) in tangents[..n].iter().enumerate() {
+                let i = start + j;
+                let point = at(i);
+                let turned = if i == 0 {
+                    rotate_arc(Vec3::Y, tangent, Vec3::X)
+                } else {
+                    rotate_arc(tangent_prev, tangent, normal)
+                };
+                // The rotated normal is already unit and perpendicular up
+                // to rounding: project the rounding away and fix the length
+                // with one Newton step of 1/√x; fall back where a
+                // degenerate tangent left nothing to project.
+                let projected = turned - tangent * turned.dot(tangent);
+                let len2 = projected.length_squared();
+                normal = if (len2 - 1.0).abs() < 0.01 {
+                    projected * (1.5 - 0.5 * len2)
+                } else {
+                    projected
+                        .try_normalize()
+                        .unwrap_or_else(|| tangent.any_orthonormal_vector())
+                };
+                let binormal = tangent.cross(normal);
+                let r = BranchMesher::ring_radius(plan, ids, &frame.radii, i);
+                let ring = i * stride;
+                let ring_positions = &mut positions[ring..ring + stride];
+                let ring_normals = &mut normals[ring..ring + stride];
+                // SIMD lanes (Vec3A) for the per-vertex work, bounds
+                // included: plain min/max, as the vertices are finite.
+                let (n4, b4, c4) = (
+                    Vec3A::from(normal),
+                    Vec3A::from(binormal),
+                    Vec3A::from(point),
+                );
+                for ((p, nrm), &[cos, sin]) in ring_positions
+                    .iter_mut()
+                    .zip(ring_normals.iter_mut())
+                    .zip(trig)
+                {
+                    let dir = n4 * cos + b4 * sin;
+                    let v = c4 + dir * r;
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                    *p = Vec3::from(v);
+                    *nrm = Vec3::from(dir);
+                }
+                tangent_prev = tangent;
+                last = (point, r);
+            }
+            start += n;
         }
-        let apex = base + k * stride;
+        let apex = k * stride;
         let tip = last.0 + tangent_prev * last.1;
         positions[apex] = tip;
         normals[apex] = tangent_prev;
-        *bounds = bounds.with_point(tip);
+        let mut bounds = Aabb {
+            min: Vec3::from(lo),
+            max: Vec3::from(hi),
+        }
+        .with_point(tip);
         if !plan.child {
             // The first tangent, recomputed: the loop above moved on.
             let first = (at(1) - at(0)).try_normalize().unwrap_or(fallback);
             positions[apex + 1] = at(0);
             normals[apex + 1] = -first;
-            *bounds = bounds.with_point(at(0));
+            bounds = bounds.with_point(at(0));
         }
+        bounds
     }
 }
 
-/// Turns leaves into quads, frame after frame, with one set of buffers.
+/// Leaves per parallel batch of [`LeafMesher::mesh`].
+const LEAF_BATCH: usize = 2048;
+
+/// Turns leaves into quads or contour fans, frame after frame, with one set
+/// of buffers.
 #[derive(Clone, Debug)]
 pub struct LeafMesher {
     shape: LeafShape,
     leaf_count: usize,
+    /// Contour mode: per leaf material, its outline.
+    contours: Vec<LeafContour>,
+    /// Contour mode: per leaf material, its fan (centre, then rim), flat.
+    fans: Vec<Vec2>,
+    /// Contour mode: per leaf, its material pair.
+    pairs: Vec<[u32; 2]>,
     buffers: MeshBuffers,
 }
 
 impl LeafMesher {
     /// Plans the leaves of `topology`: vertex layout, index buffer sorted by
-    /// material pair, UVs.
+    /// material pair, UVs. In [`LeafShape::Contour`] mode this extracts the
+    /// outline of every leaf material's texture
+    /// ([`LeafContour::of_material`]); a leaf's UVs are those of its first
+    /// material's contour in every frame.
     pub fn new(topology: &FrameTopology, options: &MeshOptions) -> Result<LeafMesher, MeshError> {
         let shape = options.leaf_shape;
+        if let LeafShape::Contour { points } = shape {
+            crate::contour::check_points(points)
+                .map_err(|e| MeshError::InvalidOptions(e.to_string()))?;
+        }
         let n = topology.leaves.len();
-        let vertices = n
-            .checked_mul(shape.vertices_per_leaf())
-            .ok_or(MeshError::TooLarge {
-                what: "vertices",
-                count: u64::MAX,
-            })?;
+        let materials = topology.leaf_materials.len();
+        if let Some((leaf, l)) = topology
+            .leaves
+            .iter()
+            .enumerate()
+            .find(|(_, l)| l.materials.iter().any(|&m| m as usize >= materials))
+        {
+            return Err(MeshError::LeafMaterialOutOfRange {
+                leaf,
+                materials: l.materials,
+                count: materials,
+            });
+        }
+        let per_leaf = shape.vertices_per_leaf();
+        let vertices = n.checked_mul(per_leaf).ok_or(MeshError::TooLarge {
+            what: "vertices",
+            count: u64::MAX,
+        })?;
         to_u32(vertices, "vertices")?;
         let indices = n
             .checked_mul(shape.indices_per_leaf())
@@ -673,11 +944,27 @@ impl LeafMesher {
         to_u32(indices, "indices")?;
         let mut buffers = MeshBuffers::with_len(vertices, indices);
 
+        let contours: Vec<LeafContour> = match shape {
+            LeafShape::Quad => Vec::new(),
+            LeafShape::Contour { points } => topology
+                .leaf_materials
+                .par_iter()
+                .map(|m| LeafContour::of_material(m, points))
+                .collect::<Result<_, _>>()
+                .map_err(|e| MeshError::InvalidOptions(e.to_string()))?,
+        };
+        let fans: Vec<Vec2> = contours.iter().flat_map(LeafContour::fan).collect();
+        let pairs = match shape {
+            LeafShape::Quad => Vec::new(),
+            _ => topology.leaves.iter().map(|l| l.materials).collect(),
+        };
+
         // Group leaves by material pair, keeping topology order within a
         // group; groups appear in order of their smallest pair.
         let mut order: Vec<u32> = (0..n as u32).collect();
         order.sort_by_key(|&i| topology.leaves[i as usize].materials);
         let mut group: Option<MeshGroup> = None;
+        let per = per_leaf as u32;
         for &leaf in &order {
             let materials = topology.leaves[leaf as usize].materials;
             match &mut group {
@@ -693,28 +980,56 @@ impl LeafMesher {
                     });
                 }
             }
-            let v = leaf * 4;
-            buffers
-                .indices
-                .extend_from_slice(&[v, v + 1, v + 2, v, v + 2, v + 3]);
+            let v = leaf * per;
+            match shape {
+                LeafShape::Quad => {
+                    buffers
+                        .indices
+                        .extend_from_slice(&[v, v + 1, v + 2, v, v + 2, v + 3])
+                }
+                LeafShape::Contour { points } => {
+                    for k in 0..points {
+                        buffers.indices.extend_from_slice(&[
+                            v,
+                            v + 1 + k,
+                            v + 1 + (k + 1) % points,
+                        ]);
+                    }
+                }
+            }
             if let Some(g) = &mut group {
-                g.index_count += 6;
+                g.index_count += shape.indices_per_leaf() as u32;
             }
         }
         buffers.groups.extend(group);
-        for quad in buffers.uvs.chunks_exact_mut(4) {
-            // Upright images: the base (vertices 0, 1) samples the bottom
-            // row, which is glTF's v = 1.
-            quad.copy_from_slice(&[
-                Vec2::new(0.0, 1.0),
-                Vec2::new(1.0, 1.0),
-                Vec2::new(1.0, 0.0),
-                Vec2::new(0.0, 0.0),
-            ]);
+        match shape {
+            LeafShape::Quad => {
+                for quad in buffers.uvs.chunks_exact_mut(4) {
+                    // Upright images: the base (vertices 0, 1) samples the
+                    // bottom row, which is glTF's v = 1.
+                    quad.copy_from_slice(&[
+                        Vec2::new(0.0, 1.0),
+                        Vec2::new(1.0, 1.0),
+                        Vec2::new(1.0, 0.0),
+                        Vec2::new(0.0, 0.0),
+                    ]);
+                }
+            }
+            LeafShape::Contour { .. } => {
+                for (uvs, leaf) in buffers.uvs.chunks_exact_mut(per_leaf).zip(&topology.leaves) {
+                    let fan = &fans[leaf.materials[0] as usize * per_leaf..][..per_leaf];
+                    for (uv, &p) in uvs.iter_mut().zip(fan) {
+                        *uv = LeafContour::uv(p);
+                    }
+                }
+            }
         }
         Ok(LeafMesher {
             shape,
             leaf_count: n,
+            contours,
+            fans,
+            pairs,
             buffers,
         })
     }
@@ -722,6 +1037,12 @@ impl LeafMesher {
     /// The leaf shape.
     pub fn shape(&self) -> LeafShape {
         self.shape
+    }
+
+    /// Contour mode: the outline of every leaf material, indexed like
+    /// [`FrameTopology::leaf_materials`]; empty for quads.
+    pub fn contours(&self) -> &[LeafContour] {
+        &self.contours
     }
 
     /// Number of vertices of every frame's mesh.
@@ -735,6 +1056,10 @@ impl LeafMesher {
     }
 
     /// Meshes one frame's leaves: overwrites positions, normals and bounds.
+    ///
+    /// Leaves are meshed in parallel (rayon) in batches of consecutive
+    /// leaves. In contour mode a leaf's blend (clamped to [0, 1]) morphs
+    /// its outline from its first material's contour to its second's.
     pub fn mesh(&mut self, frame: &Frame) -> Result<&MeshBuffers, MeshError> {
         if frame.leaves.len() != self.leaf_count {
             return Err(FrameMismatch(format!(
@@ -752,25 +1077,78 @@ impl LeafMesher {
         }) {
             return Err(FrameMismatch(format!("leaf {i} has a non-finite number")).into());
         }
-        let mut bounds = Aabb::EMPTY;
-        let positions = self.buffers.positions.chunks_exact_mut(4);
-        let normals = self.buffers.normals.chunks_exact_mut(4);
-        for ((leaf, quad), quad_normals) in frame.leaves.iter().zip(positions).zip(normals) {
-            // Unit rotation even for a sloppy quaternion; identity for zero.
-            let q = Vec4::from(leaf.orientation)
-                .try_normalize()
-                .map_or(Quat::IDENTITY, Quat::from_vec4);
-            let half = q * Vec3::X * (0.5 * leaf.width.max(0.0));
-            let up = q * Vec3::Y * leaf.height.max(0.0);
-            let a = leaf.anchor;
-            quad.copy_from_slice(&[a - half, a + half, a + half + up, a - half + up]);
-            for &v in &*quad {
-                bounds = bounds.with_point(v);
-            }
-            let n = (q * Vec3::Z).try_normalize().unwrap_or(Vec3::Z);
-            quad_normals.fill(n);
-        }
-        self.buffers.bounds = bounds;
+        let per_leaf = self.shape.vertices_per_leaf();
+        let (fans, pairs) = (&self.fans, &self.pairs);
+        let buffers = &mut self.buffers;
+        let bounds = buffers
+            .positions
+            .par_chunks_mut(per_leaf * LEAF_BATCH)
+            .zip(buffers.normals.par_chunks_mut(per_leaf * LEAF_BATCH))
+            .zip(frame.leaves.par_chunks(LEAF_BATCH))
+            .enumerate()
+            .map(|(batch, ((positions, normals), leaves))| {
+                let chunks = positions
+                    .chunks_exact_mut(per_leaf)
+                    .zip(normals.chunks_exact_mut(per_leaf))
+                    .zip(leaves);
+                // SIMD lanes (Vec3A) for the per-vertex work, bounds
+                // included: plain min/max, as the vertices are finite.
+                let (mut lo, mut hi) =
+                    (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+                for (i, ((vertices, leaf_normals), leaf)) in chunks.enumerate() {
+                    // Unit rotation even for a sloppy quaternion; identity
+                    // for zero. Its matrix gives all three leaf axes.
+                    let q = Vec4::from(leaf.orientation)
+                        .try_normalize()
+                        .map_or(Quat::IDENTITY, Quat::from_vec4);
+                    let m = Mat3A::from_quat(q);
+                    let across = m.x_axis * leaf.width.max(0.0);
+                    let up = m.y_axis * leaf.height.max(0.0);
+                    let a = Vec3A::from(leaf.anchor);
+                    let mut put = |v: &mut Vec3, p: Vec3A| {
+                        lo = lo.min(p);
+                        hi = hi.max(p);
+                        *v = Vec3::from(p);
+                    };
+                    if pairs.is_empty() {
+                        let half = across * 0.5;
+                        let corners = [a - half, a + half, a + half + up, a - half + up];
+                        for (v, p) in vertices.iter_mut().zip(corners) {
+                            put(v, p);
+                        }
+                    } else {
+                        let [m0, m1] = pairs[batch * LEAF_BATCH + i];
+                        let from = &fans[m0 as usize * per_leaf..][..per_leaf];
+                        let s = if leaf.blend.is_finite() {
+                            leaf.blend.clamp(0.0, 1.0)
+                        } else {
+                            0.0
+                        };
+                        if m0 == m1 || s == 0.0 {
+                            for (v, p) in vertices.iter_mut().zip(from) {
+                                put(v, a + across * p.x + up * p.y);
+                            }
+                        } else {
+                            let to = &fans[m1 as usize * per_leaf..][..per_leaf];
+                            for ((v, p), t) in vertices.iter_mut().zip(from).zip(to) {
+                                let p = p.lerp(*t, s);
+                                put(v, a + across * p.x + up * p.y);
+                            }
+                        }
+                    }
+                    leaf_normals.fill(Vec3::from(m.z_axis));
+                }
+                if lo.x <= hi.x {
+                    Aabb {
+                        min: Vec3::from(lo),
+                        max: Vec3::from(hi),
+                    }
+                } else {
+                    Aabb::EMPTY
+                }
+            })
+            .reduce(|| Aabb::EMPTY, Aabb::union);
+        buffers.bounds = bounds;
         Ok(&self.buffers)
     }
 }

@@ -386,8 +386,16 @@ fn leaf_quads_follow_the_billboard_convention() {
         assert!((tip - base - leaf.orientation * Vec3::Y * leaf.height).length() < 1e-6);
         assert!((q[0].distance(q[1]) - leaf.width).abs() < 1e-6);
         assert!((mesh.normals[4 * i] - leaf.orientation * Vec3::Z).length() < 1e-6);
-        assert_eq!(mesh.uvs[4 * i].y, 1.0, "base on the image's bottom row (v = 1)");
-        assert_eq!(mesh.uvs[4 * i + 2].y, 0.0, "tip on the image's top row (v = 0)");
+        assert_eq!(
+            mesh.uvs[4 * i].y,
+            1.0,
+            "base on the image's bottom row (v = 1)"
+        );
+        assert_eq!(
+            mesh.uvs[4 * i + 2].y,
+            0.0,
+            "tip on the image's top row (v = 0)"
+        );
     }
 }
 

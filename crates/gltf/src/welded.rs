@@ -85,9 +85,7 @@ impl Plan {
     }
 
     fn vertex(&self, ring: usize, j: u32) -> u32 {
-        self.first_vertex
-            + (ring - self.first_ring()) as u32 * (self.sides + 1)
-            + j
+        self.first_vertex + (ring - self.first_ring()) as u32 * (self.sides + 1) + j
     }
 }
 
@@ -223,7 +221,10 @@ pub fn welded_branch_mesh(
         }
         let ring = parent.rings[a];
         let d = (pos(plans[c].ids[1]) - pos(plans[c].ids[0])).normalize_or(ring.normal);
-        let theta = d.dot(ring.binormal()).atan2(d.dot(ring.normal)).rem_euclid(TAU);
+        let theta = d
+            .dot(ring.binormal())
+            .atan2(d.dot(ring.normal))
+            .rem_euclid(TAU);
         let sides = parent.sides;
         let j0 = ((theta / TAU * sides as f32) as u32).min(sides - 1);
         let mask = &mut taken[p as usize][a];
@@ -387,9 +388,9 @@ fn write_tube_indices(plan: &Plan, taken: &[u64], out: &mut Vec<u32>) {
     let s = plan.sides;
     let first = plan.first_ring();
     let last = plan.rings.len() - 1;
-    for a in first..last {
+    for (a, &holes) in taken.iter().enumerate().take(last).skip(first) {
         for j in 0..s {
-            if taken[a] & (1u64 << j) != 0 {
+            if holes & (1u64 << j) != 0 {
                 continue;
             }
             let (v0, v1) = (plan.vertex(a, j), plan.vertex(a, j + 1));

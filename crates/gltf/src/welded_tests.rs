@@ -81,15 +81,20 @@ fn welded(tree: &Tree) -> MeshBuffers {
 fn assert_watertight(mesh: &MeshBuffers, what: &str) {
     let uses = edge_uses(mesh);
     let bad: Vec<_> = uses.iter().filter(|(_, n)| **n != 2).take(5).collect();
-    assert!(bad.is_empty(), "{what}: edges not shared by two triangles: {bad:?}");
+    assert!(
+        bad.is_empty(),
+        "{what}: edges not shared by two triangles: {bad:?}"
+    );
     assert!(mesh.positions.iter().all(|p| p.is_finite()), "{what}");
     assert!(
-        mesh.normals
-            .iter()
-            .all(|n| (n.length() - 1.0).abs() < 1e-3),
+        mesh.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-3),
         "{what}: normals must be unit"
     );
-    assert!(mesh.indices.iter().all(|&i| (i as usize) < mesh.positions.len()));
+    assert!(
+        mesh.indices
+            .iter()
+            .all(|&i| (i as usize) < mesh.positions.len())
+    );
     assert_eq!(mesh.groups.len(), 1);
     assert_eq!(mesh.groups[0].index_count as usize, mesh.indices.len());
 }

@@ -1,4 +1,8 @@
-//! Runs the Khronos glTF validator on GLBs this crate writes.
+//! Runs the Khronos glTF validator on GLBs this crate writes: static
+//! exports, per-frame GLBs (contour and quad leaves, blended textures) and
+//! animated GLBs (float, `KHR_mesh_quantization`, and
+//! `EXT_meshopt_compression`, which the validator only checks structurally
+//! — the crate's unit tests decode it).
 //!
 //! Needs Node.js and the validator installed:
 //! `npm ci --prefix tools/gltf-validate`, then
@@ -11,6 +15,9 @@ use std::process::Command;
 
 use glam::{Quat, Vec3};
 use treemorph_generate::{GenerateOptions, Preset, generate};
+use treemorph_gltf::animated::{AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions};
+use treemorph_gltf::bench::Sway;
+use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::mesh::MeshOptions;
 use treemorph_gltf::sample::{leaf_texture, sample_tree};
 use treemorph_gltf::{ExportOptions, export_glb};
@@ -105,7 +112,7 @@ fn write_samples(dir: &Path) -> Vec<PathBuf> {
         let name: &'static str = format!("generated-{preset:?}.glb").leak();
         (name, tree, ExportOptions::default())
     });
-    cases
+    let mut files: Vec<PathBuf> = cases
         .into_iter()
         .chain(generated)
         .map(|(name, tree, options)| {
@@ -113,7 +120,50 @@ fn write_samples(dir: &Path) -> Vec<PathBuf> {
             std::fs::write(&path, export_glb(&tree, &options).unwrap()).unwrap();
             path
         })
-        .collect()
+        .collect();
+    files.extend(write_frame_samples(dir));
+    files
+}
+
+/// Per-frame and animated GLBs of a swaying maple whose leaves fade
+/// between its two leaf materials.
+fn write_frame_samples(dir: &Path) -> Vec<PathBuf> {
+    let tree = generate(&GenerateOptions::new(Preset::Maple, 1).with_size(1500)).unwrap();
+    let sway = Sway::new(&tree, 6);
+    let (topology, radii) = (sway.topology(), sway.reference_radii());
+    let mut files = Vec::new();
+    let mut write = |name: &str, bytes: Vec<u8>| {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        files.push(path);
+    };
+    let quads = FrameGlbOptions::default().with_mesh(MeshOptions::default());
+    for (label, options) in [("contour", FrameGlbOptions::default()), ("quad", quads)] {
+        let mut writer = FrameGlbWriter::new(topology, radii, &options).unwrap();
+        for i in [0, 3, 5] {
+            write(
+                &format!("frame-{label}-{i}.glb"),
+                writer.write(&sway.frame(i)).unwrap(),
+            );
+        }
+    }
+    for encoding in [
+        AnimatedEncoding::Float,
+        AnimatedEncoding::Quantized,
+        AnimatedEncoding::Meshopt,
+    ] {
+        let options = AnimatedOptions::default().with_encoding(encoding);
+        let mut builder =
+            AnimatedGlbBuilder::new(topology, radii, sway.bounds(), &options).unwrap();
+        for i in 0..sway.len() {
+            builder.push(&sway.frame(i)).unwrap();
+        }
+        write(
+            &format!("animated-{encoding:?}.glb").to_lowercase(),
+            builder.finish().unwrap(),
+        );
+    }
+    files
 }
 
 #[test]

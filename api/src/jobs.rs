@@ -1,0 +1,524 @@
+//! Wire types of the `/v1/jobs` resource: the requests that start morph and
+//! sketch jobs, and the job document clients poll, stream and receive in
+//! webhooks.
+//!
+//! Requests are strict (`deny_unknown_fields`): a misspelt option is a 422
+//! naming the field, never silently ignored. Optional fields are added
+//! rather than renamed, so old clients keep working.
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::ErrorCode;
+
+/// `POST /v1/jobs`: a morph or a sketch job, tagged by `kind`.
+///
+/// Its OpenAPI schema is written by hand (see the `ToSchema` impl): the
+/// derived one composes each variant's strict (`additionalProperties:
+/// false`) object with the `kind` tag through `allOf`, which no document
+/// can satisfy.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum JobRequest {
+    /// Morph one tree into another.
+    Morph(MorphRequest),
+    /// Animate a tree into a sketched crown silhouette.
+    Sketch(SketchRequest),
+}
+
+impl utoipa::PartialSchema for JobRequest {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::RefOr;
+        use utoipa::openapi::schema::{ObjectBuilder, OneOfBuilder, Schema, Type};
+        fn tagged<T: utoipa::PartialSchema>(kind: &str) -> RefOr<Schema> {
+            match T::schema() {
+                RefOr::T(Schema::Object(mut object)) => {
+                    let tag = ObjectBuilder::new()
+                        .schema_type(Type::String)
+                        .enum_values(Some([kind]))
+                        .description(Some("The job kind"))
+                        .build();
+                    object.properties.insert("kind".into(), tag.into());
+                    object.required.insert(0, "kind".into());
+                    object.title = Some(kind.into());
+                    RefOr::T(Schema::Object(object))
+                }
+                other => other,
+            }
+        }
+        OneOfBuilder::new()
+            .item(tagged::<MorphRequest>("morph"))
+            .item(tagged::<SketchRequest>("sketch"))
+            .description(Some("A morph or a sketch job, tagged by `kind`."))
+            .into()
+    }
+}
+
+impl ToSchema for JobRequest {
+    fn schemas(
+        schemas: &mut Vec<(
+            String,
+            utoipa::openapi::RefOr<utoipa::openapi::schema::Schema>,
+        )>,
+    ) {
+        <MorphRequest as ToSchema>::schemas(schemas);
+        <SketchRequest as ToSchema>::schemas(schemas);
+    }
+}
+
+impl JobRequest {
+    /// The job kind (`morph` or `sketch`).
+    pub fn kind(&self) -> JobKind {
+        match self {
+            JobRequest::Morph(_) => JobKind::Morph,
+            JobRequest::Sketch(_) => JobKind::Sketch,
+        }
+    }
+
+    /// Number of frames requested.
+    pub fn frames(&self) -> u32 {
+        match self {
+            JobRequest::Morph(r) => r.frames,
+            JobRequest::Sketch(r) => r.frames,
+        }
+    }
+
+    /// The ids of the trees the job reads.
+    pub fn tree_ids(&self) -> Vec<&str> {
+        match self {
+            JobRequest::Morph(r) => vec![r.source.as_str(), r.target.as_str()],
+            JobRequest::Sketch(r) => vec![r.tree.as_str()],
+        }
+    }
+
+    /// Which outputs to produce.
+    pub fn outputs(&self) -> &Outputs {
+        match self {
+            JobRequest::Morph(r) => &r.outputs,
+            JobRequest::Sketch(r) => &r.outputs,
+        }
+    }
+
+    /// The webhook URL, if any.
+    pub fn callback_url(&self) -> Option<&str> {
+        match self {
+            JobRequest::Morph(r) => r.callback_url.as_deref(),
+            JobRequest::Sketch(r) => r.callback_url.as_deref(),
+        }
+    }
+}
+
+/// The two kinds of job.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobKind {
+    /// Tree-to-tree morph.
+    Morph,
+    /// Tree-to-sketched-crown animation.
+    Sketch,
+}
+
+impl JobKind {
+    /// `morph` or `sketch`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobKind::Morph => "morph",
+            JobKind::Sketch => "sketch",
+        }
+    }
+}
+
+/// Which outputs a job produces (all by default).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct Outputs {
+    /// One GLB per frame (`/v1/jobs/{id}/frames/{n}.glb`). Default true.
+    pub glb: bool,
+    /// One animated GLB of the whole sequence (`animation.glb`). Default
+    /// true.
+    pub animated: bool,
+    /// The binary delta stream (`/v1/jobs/{id}/stream`). Default true.
+    pub delta: bool,
+}
+
+impl Default for Outputs {
+    fn default() -> Self {
+        Outputs {
+            glb: true,
+            animated: true,
+            delta: true,
+        }
+    }
+}
+
+/// A morph job: `source` grows, wilts, splits and merges into `target`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MorphRequest {
+    /// Id of the tree at t = 0.
+    pub source: String,
+    /// Id of the tree at t = 1.
+    pub target: String,
+    /// Number of frames, including both ends (2..=600 by default).
+    #[schema(minimum = 2, maximum = 600)]
+    #[serde(deserialize_with = "crate::int::u32")]
+    pub frames: u32,
+    /// Morph options.
+    #[serde(default)]
+    pub options: MorphJobOptions,
+    /// Which outputs to produce.
+    #[serde(default)]
+    pub outputs: Outputs,
+    /// URL that receives the job document when the job ends (Standard
+    /// Webhooks signature).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub callback_url: Option<String>,
+}
+
+/// How chains of the two trees are matched.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Matching {
+    /// A chain may correspond to several chains (split/merge). Default.
+    #[default]
+    OneToMany,
+    /// Each chain corresponds to at most one chain (grow/wilt the rest).
+    OneToOne,
+}
+
+/// How leaves are assigned between the trees.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LeafAssignment {
+    /// Nearest-first greedy assignment. Default.
+    #[default]
+    Greedy,
+    /// Random assignment (seeded, reproducible).
+    Random,
+}
+
+/// Options of a morph job.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct MorphJobOptions {
+    /// Chain matching. Default `one_to_many`.
+    pub matching: Matching,
+    /// Leaf assignment. Default `greedy`.
+    pub leaves: LeafAssignment,
+    /// Whether split and merge copies use the paper's slow-down
+    /// coefficient (copies part from the tips first rather than all along
+    /// their length at once). Default `true`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow_down: Option<bool>,
+    /// Number of keyframes between which frames are interpolated; the
+    /// pipeline's default when absent.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::int::opt_u32"
+    )]
+    pub keyframes: Option<u32>,
+}
+
+/// A sketch job: `tree` is animated into the crown `sketch` drawn from
+/// `view`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SketchRequest {
+    /// Id of the tree to animate.
+    pub tree: String,
+    /// The camera the sketch was drawn from.
+    pub view: View,
+    /// The drawn silhouette.
+    pub sketch: SketchInput,
+    /// Number of frames, including both ends (2..=600 by default).
+    #[schema(minimum = 2, maximum = 600)]
+    #[serde(deserialize_with = "crate::int::u32")]
+    pub frames: u32,
+    /// Sketch options.
+    #[serde(default)]
+    pub options: SketchJobOptions,
+    /// Which outputs to produce.
+    #[serde(default)]
+    pub outputs: Outputs,
+    /// URL that receives the job document when the job ends.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub callback_url: Option<String>,
+}
+
+/// A camera: perspective (`fov_deg`) or orthographic (`ortho_height`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct View {
+    /// Eye position (metres).
+    #[schema(schema_with = vec3)]
+    pub eye: [f32; 3],
+    /// Point looked at (metres).
+    #[schema(schema_with = vec3)]
+    pub target: [f32; 3],
+    /// Up direction.
+    #[schema(schema_with = vec3)]
+    pub up: [f32; 3],
+    /// Vertical field of view in degrees (perspective camera).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fov_deg: Option<f32>,
+    /// Height of the view volume in metres (orthographic camera).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ortho_height: Option<f32>,
+}
+
+/// A sketched polyline in normalised device coordinates ([-1, 1]², y up).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SketchInput {
+    /// The points of the stroke (at least 3).
+    #[schema(schema_with = points)]
+    pub points: Vec<[f32; 2]>,
+    /// Whether the stroke is a closed outline.
+    #[serde(default)]
+    pub closed: bool,
+}
+
+fn numbers(n: usize) -> utoipa::openapi::schema::ArrayBuilder {
+    use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Type};
+    ArrayBuilder::new()
+        .items(ObjectBuilder::new().schema_type(Type::Number).format(Some(
+            utoipa::openapi::SchemaFormat::KnownFormat(utoipa::openapi::KnownFormat::Float),
+        )))
+        .min_items(Some(n))
+        .max_items(Some(n))
+}
+
+fn vec3() -> utoipa::openapi::schema::Array {
+    numbers(3).build()
+}
+
+fn points() -> utoipa::openapi::schema::Array {
+    utoipa::openapi::schema::ArrayBuilder::new()
+        .items(numbers(2))
+        .min_items(Some(3))
+        .build()
+}
+
+/// How the crown is deformed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SketchMethod {
+    /// The multiscale cage tree (MCT). Default.
+    #[default]
+    Multiscale,
+    /// One cage around the whole crown.
+    SingleCage,
+}
+
+/// What the sketch is fitted to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SketchFit {
+    /// Fit the crown (leaves and outer branches) to the sketch.
+    Crown,
+}
+
+/// Options of a sketch job.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct SketchJobOptions {
+    /// Deformation method. Default `multiscale`.
+    pub method: SketchMethod,
+    /// What the sketch is fitted to; the pipeline's default when absent.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit: Option<SketchFit>,
+    /// Number of keyframes; the pipeline's default when absent.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::int::opt_u32"
+    )]
+    pub keyframes: Option<u32>,
+}
+
+/// A job's life cycle: `queued` → `running` → `succeeded` | `failed` |
+/// `cancelled` (a queued job can be cancelled directly; a running job whose
+/// attempt failed transiently goes back to `queued`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobStatus {
+    /// Waiting for a worker.
+    Queued,
+    /// A worker holds the job's lease.
+    Running,
+    /// Finished; `result` is set.
+    Succeeded,
+    /// Finished with an error; `error` is set.
+    Failed,
+    /// Cancelled by the client.
+    Cancelled,
+}
+
+impl JobStatus {
+    /// Every status.
+    pub const ALL: [JobStatus; 5] = [
+        JobStatus::Queued,
+        JobStatus::Running,
+        JobStatus::Succeeded,
+        JobStatus::Failed,
+        JobStatus::Cancelled,
+    ];
+
+    /// The snake_case name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobStatus::Queued => "queued",
+            JobStatus::Running => "running",
+            JobStatus::Succeeded => "succeeded",
+            JobStatus::Failed => "failed",
+            JobStatus::Cancelled => "cancelled",
+        }
+    }
+
+    /// The status named `s`.
+    pub fn parse(s: &str) -> Option<JobStatus> {
+        JobStatus::ALL.into_iter().find(|st| st.as_str() == s)
+    }
+
+    /// Whether the job has ended.
+    pub fn is_terminal(self) -> bool {
+        matches!(
+            self,
+            JobStatus::Succeeded | JobStatus::Failed | JobStatus::Cancelled
+        )
+    }
+}
+
+/// A job's error.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobErrorInfo {
+    /// Stable error code.
+    pub code: ErrorCode,
+    /// What went wrong.
+    pub message: String,
+}
+
+/// Where a finished job's outputs are.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobLinks {
+    /// The animated GLB (absent when not requested).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub animation: Option<String>,
+    /// The complete delta stream (absent when not requested).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream: Option<String>,
+    /// The metrics document.
+    pub metrics: String,
+    /// URL template of per-frame GLBs: replace `{n}` by the 0-based index
+    /// (absent when not requested).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<String>,
+}
+
+/// A finished job's result.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobResult {
+    /// Frames produced.
+    pub frames: u32,
+    /// Summary metrics reported by the pipeline.
+    #[schema(value_type = Object)]
+    pub metrics: serde_json::Value,
+    /// Output URLs.
+    pub links: JobLinks,
+}
+
+/// The job document (`GET /v1/jobs/{id}`, the `202` of `POST /v1/jobs`, and
+/// the webhook body).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobInfo {
+    /// The job's id.
+    pub id: String,
+    /// `morph` or `sketch`.
+    pub kind: JobKind,
+    /// Where the job is in its life cycle.
+    pub status: JobStatus,
+    /// Overall progress in [0, 1].
+    pub progress: f32,
+    /// Current stage (`loading`, `analysing`, `planning`, `frames`,
+    /// `finishing`), absent before the first claim.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stage: Option<String>,
+    /// Attempts started so far (1 after the first claim).
+    pub attempt: u32,
+    /// Frames requested.
+    pub frames: u32,
+    /// Frames published so far by the current attempt (their GLBs and
+    /// stream records can be fetched).
+    pub frames_ready: u32,
+    /// Whether a cancellation was requested and not yet acted on.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub cancel_requested: bool,
+    /// When the job was created (RFC 3339, UTC).
+    pub created_at: String,
+    /// When the job last changed (RFC 3339, UTC).
+    pub updated_at: String,
+    /// Set when `status` is `failed` (or `cancelled`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<JobErrorInfo>,
+    /// Set when `status` is `succeeded`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub result: Option<JobResult>,
+}
+
+/// One page of jobs, newest first.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobPage {
+    /// The jobs on this page.
+    pub items: Vec<JobInfo>,
+    /// Pass as `?cursor=` for the next page; absent on the last page.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next_cursor: Option<String>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn morph_request_parses_with_defaults() {
+        let r: JobRequest = serde_json::from_str(
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10}"#,
+        )
+        .unwrap();
+        let JobRequest::Morph(m) = &r else {
+            panic!("not a morph")
+        };
+        assert_eq!(m.options, MorphJobOptions::default());
+        assert_eq!(m.outputs, Outputs::default());
+        assert_eq!(r.tree_ids(), ["a", "b"]);
+        assert_eq!(r.kind(), JobKind::Morph);
+    }
+
+    #[test]
+    fn unknown_fields_are_named() {
+        let e = serde_json::from_str::<JobRequest>(
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10, "frobnicate": 1}"#,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("frobnicate"), "{e}");
+        let e = serde_json::from_str::<JobRequest>(
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10, "options": {"matchin": "one_to_one"}}"#,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("matchin"), "{e}");
+    }
+
+    #[test]
+    fn sketch_request_round_trips() {
+        let json = serde_json::json!({
+            "kind": "sketch", "tree": "t",
+            "view": {"eye": [0, 1, 5], "target": [0, 1, 0], "up": [0, 1, 0], "fov_deg": 45},
+            "sketch": {"points": [[0, 0], [1, 0], [0, 1]], "closed": true},
+            "frames": 3, "options": {"method": "single_cage", "fit": "crown"},
+            "outputs": {"glb": false}
+        });
+        let r: JobRequest = serde_json::from_value(json).unwrap();
+        assert!(!r.outputs().glb && r.outputs().delta);
+        let back: JobRequest = serde_json::from_value(serde_json::to_value(&r).unwrap()).unwrap();
+        assert_eq!(back, r);
+    }
+}

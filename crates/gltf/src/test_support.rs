@@ -1,0 +1,224 @@
+//! Reading back the GLBs this crate writes, for tests: accessors of every
+//! component type this crate uses, through `EXT_meshopt_compression` too
+//! (decoded with meshoptimizer's decoders).
+
+use glam::{Vec2, Vec3};
+use serde_json::Value;
+
+use crate::glb::Glb;
+
+/// A parsed GLB: its JSON and its BIN chunk.
+pub(crate) struct Parsed {
+    pub(crate) json: Value,
+    pub(crate) bin: Vec<u8>,
+}
+
+impl Parsed {
+    pub(crate) fn new(glb: &[u8]) -> Parsed {
+        let container = Glb::from_slice(glb).unwrap();
+        Parsed {
+            json: serde_json::from_slice(container.json).unwrap(),
+            bin: container.bin.unwrap_or_default().to_vec(),
+        }
+    }
+
+    /// The plain bytes of a buffer view, decompressing meshopt views.
+    pub(crate) fn view(&self, index: usize) -> Vec<u8> {
+        let view = &self.json["bufferViews"][index];
+        if let Some(ext) = view["extensions"].get("EXT_meshopt_compression") {
+            let offset = ext["byteOffset"].as_u64().unwrap_or(0) as usize;
+            let len = ext["byteLength"].as_u64().unwrap() as usize;
+            let stride = ext["byteStride"].as_u64().unwrap() as usize;
+            let count = ext["count"].as_u64().unwrap() as usize;
+            let data = &self.bin[offset..offset + len];
+            return match ext["mode"].as_str().unwrap() {
+                "ATTRIBUTES" => match stride {
+                    4 => meshopt::decode_vertex_buffer::<[u8; 4]>(data, count)
+                        .unwrap()
+                        .concat(),
+                    8 => meshopt::decode_vertex_buffer::<[u8; 8]>(data, count)
+                        .unwrap()
+                        .concat(),
+                    12 => meshopt::decode_vertex_buffer::<[u8; 12]>(data, count)
+                        .unwrap()
+                        .concat(),
+                    s => panic!("stride {s}"),
+                },
+                "TRIANGLES" => match stride {
+                    2 => meshopt::decode_index_buffer::<u16>(data, count)
+                        .unwrap()
+                        .iter()
+                        .flat_map(|i| i.to_le_bytes())
+                        .collect(),
+                    _ => meshopt::decode_index_buffer::<u32>(data, count)
+                        .unwrap()
+                        .iter()
+                        .flat_map(|i| i.to_le_bytes())
+                        .collect(),
+                },
+                m => panic!("mode {m}"),
+            };
+        }
+        assert_eq!(view["buffer"], 0);
+        let offset = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let len = view["byteLength"].as_u64().unwrap() as usize;
+        self.bin[offset..offset + len].to_vec()
+    }
+
+    /// An accessor's components as floats (normalised integers mapped to
+    /// [-1, 1] as glTF specifies), `n` per element.
+    pub(crate) fn floats(&self, accessor: usize) -> (Vec<f32>, usize) {
+        let a = &self.json["accessors"][accessor];
+        let n = match a["type"].as_str().unwrap() {
+            "SCALAR" => 1,
+            "VEC2" => 2,
+            "VEC3" => 3,
+            "VEC4" => 4,
+            t => panic!("type {t}"),
+        };
+        let count = a["count"].as_u64().unwrap() as usize;
+        let Some(view_index) = a["bufferView"].as_u64() else {
+            // No buffer view: all zeros.
+            return (vec![0.0; count * n], n);
+        };
+        let view_index = view_index as usize;
+        let bytes = self.view(view_index);
+        let view = &self.json["bufferViews"][view_index];
+        let component = a["componentType"].as_u64().unwrap();
+        let size = match component {
+            5120 | 5121 => 1,
+            5122 | 5123 => 2,
+            _ => 4,
+        };
+        let stride = view["byteStride"].as_u64().map_or(n * size, |s| s as usize);
+        let offset = a["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let normalized = a["normalized"].as_bool().unwrap_or(false);
+        let mut out = Vec::with_capacity(count * n);
+        for i in 0..count {
+            for c in 0..n {
+                let at = offset + i * stride + c * size;
+                let b = &bytes[at..at + size];
+                let v = match component {
+                    5126 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                    5125 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+                    5123 => f32::from(u16::from_le_bytes([b[0], b[1]])),
+                    5122 => {
+                        let v = f32::from(i16::from_le_bytes([b[0], b[1]]));
+                        if normalized {
+                            (v / 32_767.0).max(-1.0)
+                        } else {
+                            v
+                        }
+                    }
+                    5120 => {
+                        let v = f32::from(b[0] as i8);
+                        if normalized { (v / 127.0).max(-1.0) } else { v }
+                    }
+                    5121 => f32::from(b[0]),
+                    c => panic!("component {c}"),
+                };
+                out.push(v);
+            }
+        }
+        (out, n)
+    }
+
+    pub(crate) fn vec3s(&self, accessor: usize) -> Vec<Vec3> {
+        let (f, n) = self.floats(accessor);
+        assert_eq!(n, 3);
+        f.chunks_exact(3).map(Vec3::from_slice).collect()
+    }
+
+    pub(crate) fn vec2s(&self, accessor: usize) -> Vec<Vec2> {
+        let (f, n) = self.floats(accessor);
+        assert_eq!(n, 2);
+        f.chunks_exact(2).map(Vec2::from_slice).collect()
+    }
+
+    pub(crate) fn indices(&self, accessor: usize) -> Vec<u32> {
+        self.floats(accessor).0.iter().map(|&v| v as u32).collect()
+    }
+
+    /// The mesh of the node named `name`.
+    pub(crate) fn node(&self, name: &str) -> &Value {
+        self.json["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["name"] == name)
+            .unwrap()
+    }
+
+    pub(crate) fn mesh_of(&self, name: &str) -> &Value {
+        let m = self.node(name)["mesh"].as_u64().unwrap() as usize;
+        &self.json["meshes"][m]
+    }
+
+    /// The weights the animation's sampler gives at keyframe `k`.
+    pub(crate) fn keyframe_weights(&self, k: usize) -> Vec<f32> {
+        let sampler = &self.json["animations"][0]["samplers"][0];
+        let (times, _) = self.floats(sampler["input"].as_u64().unwrap() as usize);
+        let (weights, _) = self.floats(sampler["output"].as_u64().unwrap() as usize);
+        let n = weights.len() / times.len();
+        weights[k * n..(k + 1) * n].to_vec()
+    }
+
+    /// The morphed attribute (`POSITION` or `NORMAL`) of the node's mesh.
+    fn morphed_attribute(&self, name: &str, attribute: &str, weights: &[f32]) -> Vec<Vec3> {
+        let mesh = self.mesh_of(name);
+        let prim = &mesh["primitives"][0];
+        let mut p = self.vec3s(prim["attributes"][attribute].as_u64().unwrap() as usize);
+        for (k, &w) in weights.iter().enumerate() {
+            if w == 0.0 {
+                continue;
+            }
+            let accessor = prim["targets"][k][attribute].as_u64().unwrap() as usize;
+            if self.json["accessors"][accessor].get("bufferView").is_none() {
+                continue;
+            }
+            let t = self.vec3s(accessor);
+            for (p, d) in p.iter_mut().zip(t) {
+                *p += d * w;
+            }
+        }
+        p
+    }
+
+    /// Positions of the node's mesh morphed by `weights`, in world space
+    /// (the node's translation and uniform scale applied).
+    pub(crate) fn morphed(&self, name: &str, weights: &[f32]) -> Vec<Vec3> {
+        let node = self.node(name);
+        let p = self.morphed_attribute(name, "POSITION", weights);
+        let scale = node["scale"]
+            .as_array()
+            .map_or(1.0, |s| s[0].as_f64().unwrap() as f32);
+        let translation = node["translation"].as_array().map_or(Vec3::ZERO, |t| {
+            Vec3::new(
+                t[0].as_f64().unwrap() as f32,
+                t[1].as_f64().unwrap() as f32,
+                t[2].as_f64().unwrap() as f32,
+            )
+        });
+        p.iter().map(|&v| translation + v * scale).collect()
+    }
+
+    /// Unit normals of the node's mesh morphed by `weights`.
+    pub(crate) fn morphed_normals(&self, name: &str, weights: &[f32]) -> Vec<Vec3> {
+        self.morphed_attribute(name, "NORMAL", weights)
+            .iter()
+            .map(|n| n.normalize_or_zero())
+            .collect()
+    }
+}
+
+/// Triangles with each rotated to start at its smallest index (meshopt's
+/// index codec may rotate a triangle's vertices; winding is kept).
+pub(crate) fn canonical_triangles(indices: &[u32]) -> Vec<[u32; 3]> {
+    indices
+        .chunks_exact(3)
+        .map(|t| {
+            let r = (0..3).min_by_key(|&i| t[i]).unwrap();
+            [t[r], t[(r + 1) % 3], t[(r + 2) % 3]]
+        })
+        .collect()
+}

@@ -1,0 +1,179 @@
+//! Trees from a third-party generator (ez-tree, see
+//! `tools/third-party-trees`): no ground truth, so we check what can be
+//! checked — one connected tree rooted at its lowest point, the leaf count
+//! ez-tree reports (crossed billboards counted once), a skeleton that stays
+//! inside the wood, plausible radii, and an analysis that runs.
+//!
+//! ```sh
+//! npm ci --prefix tools/third-party-trees
+//! node tools/third-party-trees/generate.mjs target/third-party
+//! TREEMORPH_THIRD_PARTY_DIR=target/third-party \
+//!     cargo test -p treemorph-import --test third_party -- --ignored
+//! ```
+
+use std::num::NonZero;
+use std::path::PathBuf;
+
+use glam::Vec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use treemorph_analysis::{Analysis, AnalysisOptions};
+use treemorph_import::{ImportOptions, SkeletonMethod, import};
+
+/// Triangles of the mesh named `branches`.
+fn branch_triangles(glb: &[u8]) -> Vec<[Vec3; 3]> {
+    let doc = gltf::Gltf::from_slice(glb).unwrap();
+    let blob = doc.blob.as_deref().unwrap();
+    let mesh = doc.meshes().find(|m| m.name() == Some("branches")).unwrap();
+    let mut out = Vec::new();
+    for p in mesh.primitives() {
+        let reader = p.reader(|_| Some(blob));
+        let positions: Vec<Vec3> = reader.read_positions().unwrap().map(Vec3::from).collect();
+        let indices: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
+        for t in indices.chunks_exact(3) {
+            out.push([0, 1, 2].map(|k| positions[t[k] as usize]));
+        }
+    }
+    out
+}
+
+/// Distance from `p` to triangle `t` (Ericson, Real-Time Collision
+/// Detection, 5.1.5).
+fn triangle_distance(p: Vec3, [a, b, c]: [Vec3; 3]) -> f32 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return p.distance(a);
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return p.distance(b);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return p.distance(a + ab * (d1 / (d1 - d3)));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return p.distance(c);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return p.distance(a + ac * (d2 / (d2 - d6)));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return p.distance(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    p.distance(a + ab * (vb * denom) + ac * (vc * denom))
+}
+
+fn facts(path: &std::path::Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path.with_extension("json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+#[test]
+#[ignore = "needs TREEMORPH_THIRD_PARTY_DIR written by tools/third-party-trees"]
+fn third_party_trees_import() {
+    let dir = PathBuf::from(
+        std::env::var("TREEMORPH_THIRD_PARTY_DIR")
+            .expect("set TREEMORPH_THIRD_PARTY_DIR to the output of tools/third-party-trees"),
+    );
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "glb"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no GLB files in {}", dir.display());
+    for path in files {
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let bytes = std::fs::read(&path).unwrap();
+        let facts = facts(&path);
+        let imported =
+            import(&bytes, &ImportOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let tree = &imported.tree;
+        let report = &imported.report;
+        let sk = tree.skeleton();
+        eprintln!(
+            "{name}: {} nodes, {} leaves, method {:?}, {} tubes, warnings {:?}",
+            sk.len(),
+            tree.leaves().len(),
+            report.skeleton_method,
+            report.tube_components,
+            report.warnings
+        );
+        // ez-tree writes every branch as its own tube.
+        assert_eq!(report.skeleton_method, SkeletonMethod::TubeSoup, "{name}");
+        assert_eq!(report.wood_primitives, 1, "{name}");
+        assert_eq!(report.leaf_primitives, 1, "{name}");
+        // Leaf count: one per leaf component, crossed quads once.
+        assert_eq!(
+            tree.leaves().len() as u64,
+            facts["leaves"].as_u64().unwrap(),
+            "{name}: leaves"
+        );
+        assert_eq!(report.skipped_leaves, 0, "{name}");
+        // One tree (Tree validates connectivity) rooted at its lowest point.
+        let root = sk.node(0);
+        let lowest = sk
+            .nodes()
+            .iter()
+            .map(|n| n.position.y)
+            .fold(f32::MAX, f32::min);
+        let height = tree.stats().height;
+        assert!(
+            root.position.y <= lowest + 0.01 * height,
+            "{name}: root is not lowest"
+        );
+        // The skeleton lies inside the wood: every branch midpoint is about
+        // its radius from the wood surface (nearest of the triangles around
+        // the nearest triangle centres).
+        let wood = branch_triangles(&bytes);
+        let centres: Vec<[f32; 3]> = wood
+            .iter()
+            .map(|t| ((t[0] + t[1] + t[2]) / 3.0).to_array())
+            .collect();
+        let index: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&centres);
+        let mut inside = 0usize;
+        for i in 1..sk.len() as u32 {
+            let (p, r) = sk.point_on_branch(i, 0.5);
+            let surface = index
+                .nearest_n::<SquaredEuclidean>(&p.to_array(), NonZero::new(64).unwrap())
+                .iter()
+                .map(|n| triangle_distance(p, wood[n.item as usize]))
+                .fold(f32::MAX, f32::min);
+            if surface <= 1.5 * r + 1e-4 * height {
+                inside += 1;
+            }
+        }
+        let fraction = inside as f32 / (sk.len() - 1) as f32;
+        assert!(
+            fraction >= 0.95,
+            "{name}: only {fraction} of branches inside the wood"
+        );
+        // Plausible radii: positive, the root thickest (or nearly), none
+        // wider than a tenth of the height.
+        let rmax = sk.nodes().iter().map(|n| n.radius).fold(0.0f32, f32::max);
+        assert!(
+            root.radius >= 0.5 * rmax,
+            "{name}: root radius {} of {rmax}",
+            root.radius
+        );
+        assert!(
+            rmax <= 0.1 * height,
+            "{name}: radius {rmax} for height {height}"
+        );
+        // Leaves hang near the wood: anchors within a leaf height of a branch.
+        for leaf in tree.leaves() {
+            assert!(leaf.offset.length() <= 2.0 * leaf.height.max(leaf.width) + rmax);
+        }
+        // The analysis runs on it.
+        let analysis = Analysis::of(tree, &AnalysisOptions::default())
+            .unwrap_or_else(|e| panic!("{name}: analysis: {e}"));
+        assert!(!analysis.chains().is_empty());
+    }
+}

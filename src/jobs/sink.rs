@@ -1,0 +1,277 @@
+//! [`BlobSink`]: where a running pipeline publishes progress and outputs.
+//!
+//! The runner calls the sink on its blocking thread; the sink drives the
+//! async blob store and database with `Handle::block_on` (allowed on
+//! `spawn_blocking` threads). Every output is written to the blob store
+//! under the attempt's prefix **first**, and only then made visible by a
+//! row update fenced by the attempt token (`frames_ready = n + 1`,
+//! `header_ready = 1`). When a fenced update matches nothing, the attempt
+//! has lost its lease: the sink reports it (`cancelled()` turns true, every
+//! later publish fails) and the worker drops the attempt's outcome.
+//!
+//! Progress updates are throttled (a stage change is written at once, mere
+//! progress at most every 100 ms) so a fast pipeline does not turn into a
+//! stream of fsyncs.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use tokio::runtime::Handle;
+
+use super::Hub;
+use super::queue::{self, file_key, frame_delta_key, frame_glb_key, header_key};
+use crate::pipeline::{FrameOutput, JobSink, SinkError};
+use crate::store::{Blobs, Db};
+use crate::telemetry::Metrics;
+
+/// Files a runner may publish with [`JobSink::file`].
+pub const FILES: [&str; 3] = ["animation.glb", "stream.tmd", "metrics.json"];
+
+/// Flags shared between a running attempt, its watcher and the worker.
+#[derive(Debug, Default)]
+pub struct Flags {
+    /// A client cancelled the job.
+    pub cancel: Arc<AtomicBool>,
+    /// The process is shutting down and the grace period is over: stop and
+    /// release the job.
+    pub release: AtomicBool,
+    /// The lease was lost to another attempt (or a reclaim).
+    pub lost: AtomicBool,
+    /// Publishing failed because of the blob store or the database (a
+    /// transient fault: the attempt is retried).
+    pub storage_error: AtomicBool,
+}
+
+impl Flags {
+    /// Whether the runner should stop.
+    pub fn should_stop(&self) -> bool {
+        self.cancel.load(Ordering::SeqCst)
+            || self.release.load(Ordering::SeqCst)
+            || self.lost.load(Ordering::SeqCst)
+    }
+}
+
+/// The sink of one attempt.
+pub struct BlobSink {
+    rt: Handle,
+    db: Db,
+    blobs: Blobs,
+    hub: Arc<Hub>,
+    metrics: Arc<Metrics>,
+    kind: &'static str,
+    job: String,
+    token: String,
+    prefix: String,
+    flags: Arc<Flags>,
+    stage: &'static str,
+    stage_started: Instant,
+    progress: f32,
+    last_write: Instant,
+    frames_ready: u32,
+    header: bool,
+    frame_glbs: bool,
+    files: Vec<String>,
+}
+
+impl std::fmt::Debug for BlobSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BlobSink")
+            .field("job", &self.job)
+            .field("frames_ready", &self.frames_ready)
+            .finish_non_exhaustive()
+    }
+}
+
+impl BlobSink {
+    /// A sink for the attempt `token` of job `job`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        rt: Handle,
+        db: Db,
+        blobs: Blobs,
+        hub: Arc<Hub>,
+        metrics: Arc<Metrics>,
+        kind: &'static str,
+        job: &str,
+        token: &str,
+        flags: Arc<Flags>,
+    ) -> BlobSink {
+        BlobSink {
+            rt,
+            db,
+            blobs,
+            hub,
+            metrics,
+            kind,
+            job: job.to_owned(),
+            token: token.to_owned(),
+            prefix: queue::attempt_prefix(job, token),
+            flags,
+            stage: crate::pipeline::stage::LOADING,
+            stage_started: Instant::now(),
+            progress: 0.0,
+            last_write: Instant::now() - Duration::from_secs(1),
+            frames_ready: 0,
+            header: false,
+            frame_glbs: false,
+            files: Vec::new(),
+        }
+    }
+
+    /// Frames published.
+    pub fn frames_ready(&self) -> u32 {
+        self.frames_ready
+    }
+
+    /// Whether any frame carried a GLB.
+    pub fn frame_glbs(&self) -> bool {
+        self.frame_glbs
+    }
+
+    /// Files published.
+    pub fn files(&self) -> &[String] {
+        &self.files
+    }
+
+    /// Records the time spent in the current stage (at a stage change and
+    /// at the end of the job).
+    pub fn close_stage(&mut self) {
+        self.metrics
+            .observe_stage(self.kind, self.stage, self.stage_started.elapsed());
+        self.stage_started = Instant::now();
+    }
+
+    fn put(&self, what: &str, key: String, bytes: Vec<u8>) -> Result<(), SinkError> {
+        if self.flags.lost.load(Ordering::SeqCst) {
+            return Err(self.lost(what));
+        }
+        self.rt
+            .block_on(self.blobs.put(&key, bytes))
+            .map_err(|e| self.storage(what, e))
+    }
+
+    fn commit(&self, what: &str, result: Result<bool, sqlx::Error>) -> Result<(), SinkError> {
+        match result {
+            Ok(true) => {
+                self.hub.changed(&self.job);
+                Ok(())
+            }
+            Ok(false) => {
+                self.flags.lost.store(true, Ordering::SeqCst);
+                Err(self.lost(what))
+            }
+            Err(e) => Err(self.storage(what, e)),
+        }
+    }
+
+    fn lost(&self, what: &str) -> SinkError {
+        SinkError {
+            what: what.to_owned(),
+            reason: "this attempt lost its lease to a newer one".into(),
+        }
+    }
+
+    fn storage(&self, what: &str, e: impl std::fmt::Display) -> SinkError {
+        self.flags.storage_error.store(true, Ordering::SeqCst);
+        tracing::warn!(job = %self.job, what, error = %e, "publishing an output failed");
+        SinkError {
+            what: what.to_owned(),
+            reason: e.to_string(),
+        }
+    }
+}
+
+impl JobSink for BlobSink {
+    fn stage(&mut self, stage: &'static str, progress: f32) {
+        let changed = stage != self.stage;
+        if changed {
+            self.close_stage();
+            self.stage = stage;
+        }
+        self.progress = progress.clamp(0.0, 1.0);
+        if changed || self.last_write.elapsed() >= Duration::from_millis(100) {
+            self.last_write = Instant::now();
+            let r = self.rt.block_on(queue::set_progress(
+                &self.db,
+                &self.job,
+                &self.token,
+                stage,
+                f64::from(self.progress),
+            ));
+            // Progress is advisory: a failed write is not worth failing the
+            // job over, but a lost lease must stop it.
+            match r {
+                Ok(false) => self.flags.lost.store(true, Ordering::SeqCst),
+                Ok(true) => self.hub.changed(&self.job),
+                Err(e) => tracing::warn!(job = %self.job, error = %e, "progress update failed"),
+            }
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        self.flags.should_stop()
+    }
+
+    fn stream_header(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        if self.header {
+            return Err(SinkError {
+                what: "stream header".into(),
+                reason: "published twice".into(),
+            });
+        }
+        self.put("stream header", header_key(&self.prefix), bytes)?;
+        let r = self
+            .rt
+            .block_on(queue::publish_header(&self.db, &self.job, &self.token));
+        self.commit("stream header", r)?;
+        self.header = true;
+        Ok(())
+    }
+
+    fn frame(&mut self, frame: FrameOutput) -> Result<(), SinkError> {
+        let what = format!("frame {}", frame.index);
+        if frame.index != self.frames_ready {
+            return Err(SinkError {
+                what,
+                reason: format!(
+                    "frames must be published in order; expected {}",
+                    self.frames_ready
+                ),
+            });
+        }
+        if let Some(glb) = frame.glb {
+            self.put(&what, frame_glb_key(&self.prefix, frame.index), glb)?;
+            self.frame_glbs = true;
+        }
+        self.put(
+            &what,
+            frame_delta_key(&self.prefix, frame.index),
+            frame.delta,
+        )?;
+        let r = self.rt.block_on(queue::publish_frames(
+            &self.db,
+            &self.job,
+            &self.token,
+            frame.index + 1,
+            f64::from(self.progress),
+        ));
+        self.commit(&what, r)?;
+        self.frames_ready = frame.index + 1;
+        Ok(())
+    }
+
+    fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError> {
+        if !FILES.contains(&name) {
+            return Err(SinkError {
+                what: name.to_owned(),
+                reason: format!("unknown output file; expected one of {FILES:?}"),
+            });
+        }
+        self.put(name, file_key(&self.prefix, name), bytes)?;
+        if !self.files.iter().any(|f| f == name) {
+            self.files.push(name.to_owned());
+        }
+        Ok(())
+    }
+}

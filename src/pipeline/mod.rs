@@ -1,0 +1,122 @@
+//! Jobs as the service and the command line run them: a validated request
+//! and its input trees in, frames and files out through a [`JobSink`].
+//!
+//! The seam between the service's queue (which owns persistence, leases and
+//! streaming) and the geometry (which owns morphing, sketching, meshing and
+//! encoding) is the [`Runner`] trait: the queue calls [`Runner::check`] when a
+//! job is posted (so bad parameters get a 422 at once) and [`Runner::run`] on
+//! a blocking thread when a worker has claimed the job. A runner reports
+//! progress, publishes outputs through the sink as soon as each exists (the
+//! delta stream's header first, then one record per frame, so clients can
+//! play before the job ends) and polls [`JobSink::cancelled`] between frames.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use treemorph_api::ErrorCode;
+use treemorph_api::jobs::JobRequest;
+use treemorph_tree::Tree;
+
+/// The stages a job goes through, in order; reported in `GET /v1/jobs/{id}`
+/// and the SSE stream.
+pub mod stage {
+    /// Reading the input trees.
+    pub const LOADING: &str = "loading";
+    /// Skeleton-lobe analysis of the inputs.
+    pub const ANALYSING: &str = "analysing";
+    /// Building the morph or sketch plan (correspondences, cages).
+    pub const PLANNING: &str = "planning";
+    /// Computing, meshing and encoding frames.
+    pub const FRAMES: &str = "frames";
+    /// Writing the whole-sequence files (animated GLB, complete stream).
+    pub const FINISHING: &str = "finishing";
+}
+
+/// One frame's outputs.
+#[derive(Debug)]
+pub struct FrameOutput {
+    /// 0-based frame index.
+    pub index: u32,
+    /// Animation time in [0, 1].
+    pub t: f32,
+    /// The frame as a GLB, when per-frame GLBs were requested.
+    pub glb: Option<Vec<u8>>,
+    /// The frame's record of the delta stream.
+    pub delta: Vec<u8>,
+}
+
+/// Why publishing an output failed (storage trouble; the job is retried).
+#[derive(Debug, thiserror::Error)]
+#[error("could not store {what}: {reason}")]
+pub struct SinkError {
+    /// What was being stored.
+    pub what: String,
+    /// The cause.
+    pub reason: String,
+}
+
+/// Where a running job sends progress and outputs.
+pub trait JobSink {
+    /// Reports the current stage and the job's overall progress in [0, 1].
+    fn stage(&mut self, stage: &'static str, progress: f32);
+    /// Whether the job was cancelled; runners check between frames.
+    fn cancelled(&self) -> bool;
+    /// Publishes the delta stream's header (before any frame).
+    fn stream_header(&mut self, bytes: Vec<u8>) -> Result<(), SinkError>;
+    /// Publishes one frame (in index order).
+    fn frame(&mut self, frame: FrameOutput) -> Result<(), SinkError>;
+    /// Publishes a whole-sequence file: `animation.glb`, `stream.tmd`,
+    /// `metrics.json`.
+    fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError>;
+}
+
+/// What a finished job reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobOutcome {
+    /// Frames produced.
+    pub frames: u32,
+    /// Summary metrics (the `result.metrics` object of the job).
+    pub metrics: serde_json::Value,
+    /// Names of the files published with [`JobSink::file`].
+    pub files: Vec<String>,
+}
+
+/// Why a job failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{code}: {message}")]
+pub struct JobError {
+    /// Stable error code (the job's `error.code`).
+    pub code: ErrorCode,
+    /// What went wrong, for people.
+    pub message: String,
+    /// Whether running the job again may succeed (storage hiccups); invalid
+    /// input never is.
+    pub retryable: bool,
+}
+
+/// A claimed job with its input trees loaded.
+#[derive(Debug)]
+pub struct JobInput<'a> {
+    /// The validated request.
+    pub request: &'a JobRequest,
+    /// The trees the request names, by id.
+    pub trees: &'a HashMap<String, Arc<Tree>>,
+}
+
+/// Runs jobs. Implementations are synchronous and CPU-bound; the queue calls
+/// them on a blocking thread.
+pub trait Runner: Send + Sync + 'static {
+    /// Checks a request's parameters before it is queued (cheap: trees are
+    /// not loaded).
+    fn check(&self, request: &JobRequest) -> Result<(), JobError>;
+    /// Runs a job to the end, publishing outputs through `sink`.
+    fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError>;
+}
+
+/// The runner `treemorph serve` uses: morph and sketch jobs through the
+/// geometry crates.
+pub fn default_runner() -> Arc<dyn Runner> {
+    Arc::new(runner::PipelineRunner::default())
+}
+
+mod runner;

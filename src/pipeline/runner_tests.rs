@@ -1,0 +1,278 @@
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use treemorph_api::delta::{DecoderOptions, decode_all};
+use treemorph_api::jobs::{
+    MorphJobOptions, SketchFit, SketchInput, SketchJobOptions, SketchMethod, View,
+};
+use treemorph_generate::{GenerateOptions, Preset, generate};
+
+use super::*;
+
+/// Records everything a job publishes, in order.
+#[derive(Default)]
+struct MemorySink {
+    events: Vec<String>,
+    header: Option<Vec<u8>>,
+    frames: Vec<FrameOutput>,
+    files: HashMap<String, Vec<u8>>,
+    cancel_after: Option<usize>,
+}
+
+impl JobSink for MemorySink {
+    fn stage(&mut self, stage: &'static str, progress: f32) {
+        assert!((0.0..=1.0).contains(&progress), "progress {progress}");
+        if self.events.last().map(String::as_str) != Some(stage) {
+            self.events.push(stage.to_owned());
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel_after.is_some_and(|n| self.frames.len() >= n)
+    }
+
+    fn stream_header(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        assert!(self.header.is_none(), "the header is published once");
+        assert!(self.frames.is_empty(), "the header comes before frames");
+        self.events.push("header".into());
+        self.header = Some(bytes);
+        Ok(())
+    }
+
+    fn frame(&mut self, frame: FrameOutput) -> Result<(), SinkError> {
+        assert_eq!(frame.index as usize, self.frames.len(), "frames in order");
+        self.frames.push(frame);
+        Ok(())
+    }
+
+    fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError> {
+        self.events.push(name.to_owned());
+        self.files.insert(name.to_owned(), bytes);
+        Ok(())
+    }
+}
+
+fn tree(preset: Preset, seed: u64, size: u32) -> Arc<Tree> {
+    Arc::new(generate(&GenerateOptions::new(preset, seed).with_size(size)).unwrap())
+}
+
+fn morph_request(frames: u32, outputs: Outputs) -> JobRequest {
+    JobRequest::Morph(MorphRequest {
+        source: "a".into(),
+        target: "b".into(),
+        frames,
+        options: MorphJobOptions::default(),
+        outputs,
+        callback_url: None,
+    })
+}
+
+fn morph_trees() -> HashMap<String, Arc<Tree>> {
+    HashMap::from([
+        ("a".to_owned(), tree(Preset::Eucalyptus, 1, 300)),
+        ("b".to_owned(), tree(Preset::Shrub, 2, 300)),
+    ])
+}
+
+fn run(
+    request: &JobRequest,
+    trees: &HashMap<String, Arc<Tree>>,
+    sink: &mut MemorySink,
+) -> Result<JobOutcome, JobError> {
+    PipelineRunner::default().run(&JobInput { request, trees }, sink)
+}
+
+#[test]
+fn a_morph_job_publishes_every_output_in_order() {
+    let request = morph_request(6, Outputs::default());
+    let mut sink = MemorySink::default();
+    let outcome = run(&request, &morph_trees(), &mut sink).unwrap();
+
+    assert_eq!(outcome.frames, 6);
+    assert_eq!(sink.frames.len(), 6);
+    assert_eq!(
+        outcome.files,
+        vec!["stream.tmd", "animation.glb", "metrics.json"]
+    );
+    let header_at = sink.events.iter().position(|e| e == "header").unwrap();
+    let frames_at = sink.events.iter().position(|e| e == stage::FRAMES).unwrap();
+    assert!(header_at < frames_at, "{:?}", sink.events);
+    let ts: Vec<f32> = sink.frames.iter().map(|f| f.t).collect();
+    assert_eq!(ts, vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0]);
+    for f in &sink.frames {
+        let glb = f.glb.as_ref().expect("per-frame GLBs were requested");
+        let container = treemorph_gltf::Glb::from_slice(glb).unwrap();
+        assert!(container.bin.is_some());
+        assert!(!f.delta.is_empty());
+    }
+
+    // The complete stream is exactly what a live client received, plus the
+    // end record, and decodes to every frame.
+    let whole = &sink.files["stream.tmd"];
+    let mut live = sink.header.clone().unwrap();
+    for f in &sink.frames {
+        live.extend_from_slice(&f.delta);
+    }
+    assert!(whole.starts_with(&live));
+    assert!(whole.len() > live.len());
+    let (header, frames) = decode_all(whole, &DecoderOptions::default()).unwrap();
+    assert_eq!(frames.len(), 6);
+    assert_eq!(header.meshes.len(), 2);
+
+    assert!(treemorph_gltf::Glb::from_slice(&sink.files["animation.glb"]).is_ok());
+    let metrics: Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    for key in ["floating_branches", "floating_leaves", "mtsw", "max_jump"] {
+        assert_eq!(metrics[key].as_array().unwrap().len(), 6, "{key}");
+    }
+    assert!(
+        metrics["floating_branches"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v == 0)
+    );
+    assert!(
+        metrics["floating_leaves"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v == 0)
+    );
+    assert!(metrics["endpoint_error"]["source"].as_f64().unwrap() < 1e-4);
+    assert!(metrics["endpoint_error"]["target"].as_f64().unwrap() < 1e-4);
+    assert_eq!(outcome.metrics["floating_leaves"], 0);
+}
+
+#[test]
+fn outputs_can_be_switched_off() {
+    let request = morph_request(
+        3,
+        Outputs {
+            glb: false,
+            animated: false,
+            delta: true,
+        },
+    );
+    let mut sink = MemorySink::default();
+    let outcome = run(&request, &morph_trees(), &mut sink).unwrap();
+    assert_eq!(outcome.files, vec!["stream.tmd", "metrics.json"]);
+    assert!(sink.frames.iter().all(|f| f.glb.is_none()));
+}
+
+#[test]
+fn cancellation_stops_within_one_frame() {
+    let request = morph_request(20, Outputs::default());
+    let mut sink = MemorySink {
+        cancel_after: Some(3),
+        ..MemorySink::default()
+    };
+    let err = run(&request, &morph_trees(), &mut sink).unwrap_err();
+    assert_eq!(err.code, ErrorCode::Cancelled);
+    assert_eq!(sink.frames.len(), 3);
+    assert!(sink.files.is_empty());
+}
+
+fn heart_request(frames: u32) -> JobRequest {
+    let file =
+        treemorph_sketch::parse_sketch_file(include_bytes!("../../examples/sketches/heart.json"))
+            .unwrap();
+    JobRequest::Sketch(SketchRequest {
+        tree: "t".into(),
+        view: View {
+            eye: file.view.eye.to_array(),
+            target: file.view.target.to_array(),
+            up: file.view.up.to_array(),
+            fov_deg: file.view.fov_deg,
+            ortho_height: file.view.ortho_height,
+        },
+        sketch: SketchInput {
+            points: file.sketch.points.iter().map(|p| p.to_array()).collect(),
+            closed: file.sketch.closed,
+        },
+        frames,
+        options: SketchJobOptions {
+            method: SketchMethod::Multiscale,
+            fit: Some(SketchFit::Crown),
+            keyframes: None,
+        },
+        outputs: Outputs::default(),
+        callback_url: None,
+    })
+}
+
+#[test]
+fn a_sketch_job_reaches_the_sketch_without_floating_parts() {
+    let trees = HashMap::from([("t".to_owned(), tree(Preset::Maple, 1, 2_000))]);
+    let mut sink = MemorySink::default();
+    let outcome = run(&heart_request(5), &trees, &mut sink).unwrap();
+    assert_eq!(outcome.frames, 5);
+    let metrics: Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    assert_eq!(metrics["frechet"].as_array().unwrap().len(), 5);
+    assert!(metrics["final_iou"].as_f64().unwrap() > 0.7, "{metrics}");
+    assert!(
+        metrics["floating_branches"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v == 0)
+    );
+    assert!(
+        metrics["floating_leaves"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|v| v == 0)
+    );
+}
+
+#[test]
+fn check_refuses_bad_parameters() {
+    let runner = PipelineRunner::default();
+    for frames in [0, 1, 601] {
+        let err = runner
+            .check(&morph_request(frames, Outputs::default()))
+            .unwrap_err();
+        assert_eq!(err.code, ErrorCode::InvalidJob, "frames {frames}");
+        assert!(!err.retryable);
+    }
+    let JobRequest::Morph(mut morph) = morph_request(10, Outputs::default()) else {
+        unreachable!()
+    };
+    morph.options.keyframes = Some(11);
+    let err = runner.check(&JobRequest::Morph(morph.clone())).unwrap_err();
+    assert!(err.message.contains("keyframes"), "{}", err.message);
+    morph.options.keyframes = Some(10);
+    assert!(runner.check(&JobRequest::Morph(morph)).is_ok());
+
+    let JobRequest::Sketch(mut sketch) = heart_request(10) else {
+        unreachable!()
+    };
+    sketch.sketch.points.truncate(2);
+    assert_eq!(
+        runner
+            .check(&JobRequest::Sketch(sketch.clone()))
+            .unwrap_err()
+            .code,
+        ErrorCode::InvalidSketch
+    );
+    let JobRequest::Sketch(mut sketch) = heart_request(10) else {
+        unreachable!()
+    };
+    sketch.view.target = sketch.view.eye;
+    assert_eq!(
+        runner.check(&JobRequest::Sketch(sketch)).unwrap_err().code,
+        ErrorCode::InvalidSketch
+    );
+}
+
+#[test]
+fn a_missing_tree_is_reported_not_panicked() {
+    let mut sink = MemorySink::default();
+    let err = run(
+        &morph_request(3, Outputs::default()),
+        &HashMap::new(),
+        &mut sink,
+    )
+    .unwrap_err();
+    assert_eq!(err.code, ErrorCode::TreeNotFound);
+}

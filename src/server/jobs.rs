@@ -1,0 +1,473 @@
+//! `/v1/jobs`: start, inspect, list and cancel jobs, and fetch their
+//! outputs.
+//!
+//! # Choices
+//! - A request naming a tree that does not exist for this API key is a
+//!   **404 `tree_not_found`** (the tree is a missing resource, not a
+//!   malformed request).
+//! - **Idempotency.** With an `Idempotency-Key` header (1–255 visible
+//!   ASCII characters), the first request creates the job and every later
+//!   one with the same key and the same body (compared by a hash of the
+//!   parsed request, so formatting and field order do not matter) returns
+//!   that job (`202`, same `id`) — also under concurrency, since the unique
+//!   index decides. A different body with a reused key is 422
+//!   `idempotency_key_reused`. Keys are scoped per API key.
+//! - **Cancelling** a queued job cancels it at once; a running job gets
+//!   `cancel_requested: true` and stops within one frame (the response is
+//!   the job with status `running`); cancelling a cancelled job again is a
+//!   no-op `200`; a succeeded or failed job answers 409 `job_finished`.
+//! - Outputs of a job that has not succeeded (yet) answer 409 `not_ready`
+//!   while it is queued or running and 404 once it failed or was cancelled;
+//!   a frame is available as soon as it is published (`frames_ready`).
+
+use axum::Json;
+use axum::extract::{Path, Request, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use sha2::Digest;
+use treemorph_api::ErrorCode;
+use treemorph_api::jobs::{JobInfo, JobPage, JobRequest, JobStatus};
+use utoipa::IntoParams;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::extract::{ApiQuery, decode_cursor, encode_cursor, json_body, page_limit, path_id};
+use super::{AppState, Owner, blob};
+use crate::error::ApiError;
+use crate::jobs::queue::{self, Cancel, Created, JobRow, NewJob};
+use crate::store::new_id;
+
+/// The routes of this module.
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(post, list))
+        .routes(routes!(get, delete))
+        .routes(routes!(frame))
+        .routes(routes!(animation))
+        .routes(routes!(metrics))
+}
+
+/// Query of `GET /v1/jobs`.
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub struct JobListQuery {
+    /// Page size, 1..=100 (default 20).
+    #[param(minimum = 1, maximum = 100)]
+    pub limit: Option<u32>,
+    /// `next_cursor` of the previous page.
+    #[param(pattern = "^[0-9a-f]{45}$")]
+    pub cursor: Option<String>,
+    /// Only jobs with this status.
+    pub status: Option<JobStatus>,
+}
+
+fn idempotency_key(headers: &HeaderMap) -> Result<Option<String>, ApiError> {
+    let Some(v) = headers.get("idempotency-key") else {
+        return Ok(None);
+    };
+    let key = v
+        .to_str()
+        .ok()
+        .filter(|k| !k.is_empty() && k.len() <= 255 && k.bytes().all(|b| b.is_ascii_graphic()))
+        .ok_or_else(|| {
+            ApiError::invalid("Idempotency-Key must be 1 to 255 visible ASCII characters")
+        })?;
+    Ok(Some(key.to_owned()))
+}
+
+fn accepted(row: &JobRow) -> Response {
+    (
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, format!("/v1/jobs/{}", row.id))],
+        Json(row.info()),
+    )
+        .into_response()
+}
+
+/// Start a morph or sketch job.
+///
+/// The job is queued and runs in the background; follow it with
+/// `GET /v1/jobs/{id}`, its SSE `events`, or its delta `stream`.
+#[utoipa::path(
+    post,
+    path = "/v1/jobs",
+    operation_id = "create_job",
+    tag = "jobs",
+    params(("Idempotency-Key" = Option<String>, Header,
+        description = "Retries with the same key and body return the same job (1 to 255 visible ASCII characters)",
+        pattern = "^[!-~]{1,255}$")),
+    request_body(content = JobRequest, content_type = "application/json"),
+    responses(
+        (status = 202, description = "Queued (or the existing job of this idempotency key)", body = JobInfo,
+            headers(("Location" = String, description = "URL of the job"))),
+        (status = 400, description = "Malformed JSON (`invalid_json`)", body = treemorph_api::ErrorBody),
+        (status = 404, description = "A named tree does not exist (`tree_not_found`)", body = treemorph_api::ErrorBody),
+        (status = 413, description = "Body too large (`payload_too_large`)", body = treemorph_api::ErrorBody),
+        (status = 415, description = "Not `application/json` (`unsupported_media_type`)", body = treemorph_api::ErrorBody),
+        (status = 422, description = "Invalid request (`invalid_request`, `idempotency_key_reused`, `callback_url_refused`, `invalid_job`, `invalid_sketch`, `incompatible_trees`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn post(
+    State(state): State<AppState>,
+    owner: Owner,
+    request: Request,
+) -> Result<Response, ApiError> {
+    let key = idempotency_key(request.headers())?;
+    let (job, _) = json_body::<JobRequest, _>(request, &state).await?;
+    let settings = state.settings();
+    let frames = job.frames();
+    if !(2..=settings.max_frames).contains(&frames) {
+        return Err(ApiError::invalid(format!(
+            "frames must be in 2..={}, not {frames}",
+            settings.max_frames
+        )));
+    }
+    for id in job.tree_ids() {
+        let found =
+            crate::store::is_id(id) && state.services.db.tree(&owner.0, id).await?.is_some();
+        if !found {
+            return Err(ApiError::new(
+                ErrorCode::TreeNotFound,
+                format!("no tree {id:?}"),
+            ));
+        }
+    }
+    if let Some(url) = job.callback_url() {
+        crate::jobs::webhooks::resolve_callback(url, settings.allow_private_callbacks)
+            .await
+            .map_err(|e| ApiError::new(ErrorCode::CallbackUrlRefused, e))?;
+    }
+    state.services.runner.check(&job).map_err(|e| {
+        let code = if e.code.is_client_error() {
+            e.code
+        } else {
+            ErrorCode::InvalidJob
+        };
+        ApiError::new(code, e.message)
+    })?;
+    let canonical = serde_json::to_string(&job).expect("requests serialise");
+    let hash: String = sha2::Sha256::digest(canonical.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    if key.is_some()
+        && let Some(existing) = existing_for_key(&state, &owner, key.as_deref()).await?
+    {
+        return if existing.request_hash == hash {
+            Ok(accepted(&existing))
+        } else {
+            Err(key_reused())
+        };
+    }
+    let queued = queue::queued_count(&state.services.db).await?;
+    if queued >= settings.max_queued as i64 {
+        return Err(ApiError::new(
+            ErrorCode::QueueFull,
+            format!("{queued} jobs are waiting; try again later"),
+        )
+        .retry_after(5));
+    }
+    let trees = job.tree_ids();
+    let new = NewJob {
+        id: new_id(),
+        owner: owner.0.clone(),
+        kind: job.kind(),
+        request: canonical,
+        tree_a: trees[0].to_owned(),
+        tree_b: trees.get(1).map(|s| (*s).to_owned()),
+        frames,
+        idempotency_key: key,
+        request_hash: hash,
+        callback_url: job.callback_url().map(str::to_owned),
+    };
+    match queue::create(&state.services.db, &new).await? {
+        Created::New(row) => {
+            tracing::info!(job = %row.id, kind = row.kind.as_str(), "job queued");
+            state.services.hub.work.notify_one();
+            Ok(accepted(&row))
+        }
+        Created::Existing(row) => Ok(accepted(&row)),
+        Created::KeyReused => Err(key_reused()),
+    }
+}
+
+fn key_reused() -> ApiError {
+    ApiError::new(
+        ErrorCode::IdempotencyKeyReused,
+        "this Idempotency-Key was used with a different request",
+    )
+}
+
+async fn existing_for_key(
+    state: &AppState,
+    owner: &Owner,
+    key: Option<&str>,
+) -> Result<Option<JobRow>, ApiError> {
+    let Some(key) = key else { return Ok(None) };
+    let row = sqlx::query("SELECT id FROM jobs WHERE owner = $1 AND idempotency_key = $2")
+        .bind(&owner.0)
+        .bind(key)
+        .fetch_optional(&state.services.db.pool)
+        .await?;
+    match row {
+        Some(row) => {
+            let id: String = sqlx::Row::try_get(&row, "id")?;
+            Ok(queue::get(&state.services.db, &owner.0, &id).await?)
+        }
+        None => Ok(None),
+    }
+}
+
+/// List jobs, newest first.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs",
+    operation_id = "list_jobs",
+    tag = "jobs",
+    params(JobListQuery),
+    responses(
+        (status = 200, description = "One page of jobs", body = JobPage),
+        (status = 422, description = "Bad limit, cursor or status (`invalid_request`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn list(
+    State(state): State<AppState>,
+    owner: Owner,
+    ApiQuery(query): ApiQuery<JobListQuery>,
+) -> Result<Json<JobPage>, ApiError> {
+    let limit = page_limit(query.limit)?;
+    let after = query.cursor.as_deref().map(decode_cursor).transpose()?;
+    let mut rows = queue::list(&state.services.db, &owner.0, query.status, after, limit).await?;
+    let next_cursor = if rows.len() > limit as usize {
+        rows.truncate(limit as usize);
+        rows.last().map(|r| encode_cursor(r.created_at, &r.id))
+    } else {
+        None
+    };
+    Ok(Json(JobPage {
+        items: rows.iter().map(JobRow::info).collect(),
+        next_cursor,
+    }))
+}
+
+/// Finds `owner`'s job `id` (404 otherwise).
+pub async fn find(state: &AppState, owner: &Owner, id: &str) -> Result<JobRow, ApiError> {
+    path_id(id, "job")?;
+    queue::get(&state.services.db, &owner.0, id)
+        .await?
+        .ok_or_else(|| ApiError::not_found("job"))
+}
+
+/// Get a job.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}",
+    operation_id = "get_job",
+    tag = "jobs",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "The job", body = JobInfo),
+        (status = 404, description = "No such job (`not_found`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn get(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+) -> Result<Json<JobInfo>, ApiError> {
+    Ok(Json(find(&state, &owner, &id).await?.info()))
+}
+
+/// Cancel a job.
+///
+/// A queued job is cancelled at once; a running one stops within a frame
+/// (the response shows `cancel_requested: true`). Cancelling a cancelled job
+/// again is a no-op.
+#[utoipa::path(
+    delete,
+    path = "/v1/jobs/{id}",
+    operation_id = "cancel_job",
+    tag = "jobs",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Cancelled, or cancellation requested", body = JobInfo),
+        (status = 404, description = "No such job (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The job already succeeded or failed (`job_finished`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn delete(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+) -> Result<Json<JobInfo>, ApiError> {
+    path_id(&id, "job")?;
+    match queue::cancel(&state.services.db, &owner.0, &id).await? {
+        Cancel::Cancelled(row) => {
+            state.services.hub.changed(&id);
+            state.services.hub.webhooks.notify_one();
+            Ok(Json(row.info()))
+        }
+        Cancel::Requested(row) => {
+            state.services.hub.cancel(&id);
+            state.services.hub.changed(&id);
+            Ok(Json(row.info()))
+        }
+        Cancel::AlreadyCancelled(row) => Ok(Json(row.info())),
+        Cancel::Finished(row) => Err(ApiError::new(
+            ErrorCode::JobFinished,
+            format!("the job already {}", row.status.as_str()),
+        )),
+        Cancel::NotFound => Err(ApiError::not_found("job")),
+    }
+}
+
+/// 409 `not_ready` while the job may still produce it, 404 otherwise.
+fn not_available(row: &JobRow, what: &str) -> ApiError {
+    if row.status.is_terminal() {
+        ApiError::new(ErrorCode::NotFound, format!("this job has no {what}"))
+    } else {
+        ApiError::new(ErrorCode::NotReady, format!("the {what} is not ready yet")).retry_after(1)
+    }
+}
+
+/// Get one frame as GLB (available as soon as the frame is published).
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}/frames/{frame}",
+    operation_id = "get_job_frame",
+    tag = "jobs",
+    params(
+        ("id" = String, Path, description = "Job id"),
+        ("frame" = String, Path, description = "`{n}.glb` with the 0-based frame index n", pattern = r"^[0-9]+\.glb$"),
+        ("Range" = Option<String>, Header, description = "A single byte range"),
+        ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy"),
+    ),
+    responses(
+        (status = 200, description = "The frame", content_type = "model/gltf-binary", body = [u8],
+            headers(("ETag" = String, description = "Strong entity tag"))),
+        (status = 206, description = "A byte range of the frame", content_type = "model/gltf-binary", body = [u8]),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job or frame (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The frame is not published yet (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn frame(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path((id, frame)): Path<(String, String)>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let n: u32 = frame
+        .strip_suffix(".glb")
+        .filter(|n| !n.is_empty() && n.len() <= 6 && n.bytes().all(|b| b.is_ascii_digit()))
+        .and_then(|n| n.parse().ok())
+        .ok_or_else(|| ApiError::not_found("frame"))?;
+    let row = find(&state, &owner, &id).await?;
+    if n >= row.frames {
+        return Err(ApiError::not_found("frame"));
+    }
+    let prefix = match row.published_prefix() {
+        Some(p) if n < row.frames_ready => p,
+        _ => return Err(not_available(&row, "frame")),
+    };
+    blob::serve(
+        &state.services.blobs,
+        &queue::frame_glb_key(&prefix, n),
+        "model/gltf-binary",
+        &headers,
+        "frame (per-frame GLBs were not requested)",
+    )
+    .await
+}
+
+async fn file(
+    state: &AppState,
+    row: &JobRow,
+    name: &str,
+    content_type: &'static str,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    let produced = row
+        .result
+        .as_ref()
+        .is_some_and(|r| r.files.iter().any(|f| f == name));
+    match row.published_prefix() {
+        Some(prefix) if row.status == JobStatus::Succeeded && produced => {
+            blob::serve(
+                &state.services.blobs,
+                &queue::file_key(&prefix, name),
+                content_type,
+                headers,
+                name,
+            )
+            .await
+        }
+        _ if row.status == JobStatus::Succeeded => Err(ApiError::not_found(name)),
+        _ => Err(not_available(row, name)),
+    }
+}
+
+/// Get the animated GLB of the whole sequence.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}/animation.glb",
+    operation_id = "get_job_animation",
+    tag = "jobs",
+    params(
+        ("id" = String, Path, description = "Job id"),
+        ("Range" = Option<String>, Header, description = "A single byte range"),
+        ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy"),
+    ),
+    responses(
+        (status = 200, description = "The animated GLB", content_type = "model/gltf-binary", body = [u8],
+            headers(("ETag" = String, description = "Strong entity tag"))),
+        (status = 206, description = "A byte range", content_type = "model/gltf-binary", body = [u8]),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job, or no animation (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The job has not finished (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn animation(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let row = find(&state, &owner, &id).await?;
+    file(&state, &row, "animation.glb", "model/gltf-binary", &headers).await
+}
+
+/// Get the job's metrics document.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}/metrics.json",
+    operation_id = "get_job_metrics",
+    tag = "jobs",
+    params(
+        ("id" = String, Path, description = "Job id"),
+        ("Range" = Option<String>, Header, description = "A single byte range"),
+        ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy"),
+    ),
+    responses(
+        (status = 200, description = "The metrics", content_type = "application/json", body = super::trees::JsonDocument,
+            headers(("ETag" = String, description = "Strong entity tag"))),
+        (status = 206, description = "A byte range", content_type = "application/json", body = [u8]),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job, or no metrics (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The job has not finished (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn metrics(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let row = find(&state, &owner, &id).await?;
+    file(&state, &row, "metrics.json", "application/json", &headers).await
+}

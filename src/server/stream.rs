@@ -1,0 +1,194 @@
+//! `GET /v1/jobs/{id}/stream`: the binary delta stream
+//! (`application/vnd.treemorph.delta`, see `api/README.md`).
+//!
+//! - **While the job runs** the response is chunked and live: the header
+//!   record once it is published, then each frame record as the worker
+//!   commits it (`frames_ready`), read from the blob store under the
+//!   attempt the row names. When the job succeeds, the rest of the complete
+//!   stream (`stream.tmd` from the byte offset already sent — the runner
+//!   publishes it as exactly header + frames + end record) closes it. If the
+//!   job fails or is cancelled, or a retry replaces the attempt after bytes
+//!   were sent, the response simply ends: the missing end record tells the
+//!   client the stream is incomplete.
+//! - **After success** it is the stored `stream.tmd`, with an ETag and
+//!   single-range support (206/416) like every finished output.
+
+use axum::body::Body;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::Response;
+use bytes::Bytes;
+use tokio::sync::mpsc;
+use treemorph_api::ErrorCode;
+use treemorph_api::delta::MEDIA_TYPE;
+use treemorph_api::jobs::{JobRequest, JobStatus};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::events::JobWatch;
+use super::{AppState, Owner, blob};
+use crate::error::ApiError;
+use crate::jobs::queue::{self, JobRow};
+
+/// The routes of this module.
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(stream))
+}
+
+/// Get the delta stream: live while the job runs, complete afterwards.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}/stream",
+    operation_id = "get_job_stream",
+    tag = "jobs",
+    params(
+        ("id" = String, Path, description = "Job id"),
+        ("Range" = Option<String>, Header, description = "A single byte range (finished jobs)"),
+        ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy (finished jobs)"),
+    ),
+    responses(
+        (status = 200, description = "The stream (chunked and live while the job runs)",
+            content_type = "application/vnd.treemorph.delta", body = [u8]),
+        (status = 206, description = "A byte range of a finished stream",
+            content_type = "application/vnd.treemorph.delta", body = [u8]),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job, the job failed, or the stream was not requested (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn stream(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let watcher = JobWatch::new(&state, &owner, &id);
+    let row = super::jobs::find(&state, &owner, &id).await?;
+    let wants_delta = serde_json::from_str::<JobRequest>(&row.request)
+        .map(|r| r.outputs().delta)
+        .unwrap_or(true);
+    if !wants_delta {
+        return Err(ApiError::new(
+            ErrorCode::NotFound,
+            "this job's outputs exclude the delta stream",
+        ));
+    }
+    match row.status {
+        JobStatus::Succeeded => {
+            let has = row
+                .result
+                .as_ref()
+                .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
+            match row.published_prefix() {
+                Some(prefix) if has => {
+                    blob::serve(
+                        &state.services.blobs,
+                        &queue::file_key(&prefix, "stream.tmd"),
+                        MEDIA_TYPE,
+                        &headers,
+                        "stream",
+                    )
+                    .await
+                }
+                _ => Err(ApiError::new(
+                    ErrorCode::NotFound,
+                    "this job produced no delta stream",
+                )),
+            }
+        }
+        JobStatus::Failed | JobStatus::Cancelled => Err(ApiError::new(
+            ErrorCode::NotFound,
+            format!("the job {}; its stream is incomplete", row.status.as_str()),
+        )),
+        JobStatus::Queued | JobStatus::Running => {
+            let (tx, rx) = mpsc::channel::<Result<Bytes, std::io::Error>>(16);
+            tokio::spawn(live(state, row, watcher, tx));
+            let body = futures_util::stream::unfold(rx, |mut rx| async move {
+                rx.recv().await.map(|c| (c, rx))
+            });
+            Ok(Response::builder()
+                .status(StatusCode::OK)
+                .header(header::CONTENT_TYPE, MEDIA_TYPE)
+                .header(header::CACHE_CONTROL, "no-store")
+                .header("x-accel-buffering", "no")
+                .body(Body::from_stream(body))
+                .expect("valid response"))
+        }
+    }
+}
+
+/// Feeds a live stream until the job ends or the client goes away.
+async fn live(
+    state: AppState,
+    mut row: JobRow,
+    mut watcher: JobWatch,
+    tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
+) {
+    let blobs = &state.services.blobs;
+    let mut token: Option<String> = None;
+    let mut header_sent = false;
+    let mut next_frame = 0u32;
+    let mut sent = 0u64;
+    loop {
+        if row.published_token != token {
+            if sent > 0 {
+                // Another attempt replaced the one we were streaming.
+                return;
+            }
+            token = row.published_token.clone();
+            header_sent = false;
+            next_frame = 0;
+        }
+        if let Some(prefix) = row.published_prefix() {
+            let mut chunks = Vec::new();
+            if !header_sent && row.header_ready {
+                chunks.push(queue::header_key(&prefix));
+                header_sent = true;
+            }
+            if header_sent {
+                while next_frame < row.frames_ready {
+                    chunks.push(queue::frame_delta_key(&prefix, next_frame));
+                    next_frame += 1;
+                }
+            }
+            for key in chunks {
+                match blobs.get(&key).await {
+                    Ok(Some(bytes)) => {
+                        sent += bytes.len() as u64;
+                        if tx.send(Ok(bytes)).await.is_err() {
+                            return;
+                        }
+                    }
+                    Ok(None) => {
+                        tracing::warn!(job = %row.id, key, "a published stream record is missing");
+                        return;
+                    }
+                    Err(e) => {
+                        tracing::warn!(job = %row.id, error = %e, "reading a stream record failed");
+                        return;
+                    }
+                }
+            }
+            if row.status == JobStatus::Succeeded {
+                let complete = row
+                    .result
+                    .as_ref()
+                    .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
+                if complete
+                    && let Ok(Some(all)) = blobs.get(&queue::file_key(&prefix, "stream.tmd")).await
+                    && (all.len() as u64) >= sent
+                {
+                    let _ = tx.send(Ok(all.slice(sent as usize..))).await;
+                }
+                return;
+            }
+        }
+        if row.status.is_terminal() {
+            return;
+        }
+        match watcher.next().await {
+            Some(r) => row = r,
+            None => return,
+        }
+    }
+}

@@ -1,0 +1,171 @@
+//! Spawning servers and talking to them.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde_json::{Value, json};
+use tokio::sync::oneshot;
+use treemorph::config::Settings;
+use treemorph::jobs::testing::TestRunner;
+use treemorph::pipeline::Runner;
+use treemorph::server::{AppState, serve_state};
+
+/// A running server.
+pub struct TestApp {
+    pub base: String,
+    pub client: reqwest::Client,
+    pub state: AppState,
+    pub dir: tempfile::TempDir,
+    shutdown: Option<oneshot::Sender<()>>,
+    handle: Option<tokio::task::JoinHandle<anyhow::Result<()>>>,
+}
+
+impl TestApp {
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    pub async fn get(&self, path: &str) -> reqwest::Response {
+        self.client.get(self.url(path)).send().await.unwrap()
+    }
+
+    pub async fn get_json(&self, path: &str) -> (u16, Value) {
+        let r = self.get(path).await;
+        let status = r.status().as_u16();
+        (status, r.json().await.unwrap_or(Value::Null))
+    }
+
+    pub async fn post_json(&self, path: &str, body: &Value) -> (u16, Value) {
+        let r = self
+            .client
+            .post(self.url(path))
+            .json(body)
+            .send()
+            .await
+            .unwrap();
+        let status = r.status().as_u16();
+        (status, r.json().await.unwrap_or(Value::Null))
+    }
+
+    pub async fn delete(&self, path: &str) -> (u16, Value) {
+        let r = self.client.delete(self.url(path)).send().await.unwrap();
+        let status = r.status().as_u16();
+        (status, r.json().await.unwrap_or(Value::Null))
+    }
+
+    /// Generates a small tree; returns its id.
+    pub async fn tree(&self, seed: u64) -> String {
+        let (status, body) = self
+            .post_json(
+                "/v1/trees/generate",
+                &json!({"preset": "maple", "seed": seed, "size": 120}),
+            )
+            .await;
+        assert_eq!(status, 201, "{body}");
+        body["id"].as_str().unwrap().to_owned()
+    }
+
+    /// Posts a morph job; returns (status, body).
+    pub async fn morph(&self, source: &str, target: &str, frames: u32) -> (u16, Value) {
+        self.post_json(
+            "/v1/jobs",
+            &json!({"kind": "morph", "source": source, "target": target, "frames": frames}),
+        )
+        .await
+    }
+
+    /// Polls a job until `done(job)` or the deadline (then panics).
+    pub async fn wait_job(&self, id: &str, done: impl Fn(&Value) -> bool) -> Value {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+        loop {
+            let (status, job) = self.get_json(&format!("/v1/jobs/{id}")).await;
+            assert_eq!(status, 200, "{job}");
+            if done(&job) {
+                return job;
+            }
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "timed out waiting: {job}"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    pub async fn wait_status(&self, id: &str, status: &str) -> Value {
+        self.wait_job(id, |j| j["status"] == status).await
+    }
+
+    pub async fn stop(mut self) {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if let Some(h) = self.handle.take() {
+            h.await.unwrap().unwrap();
+        }
+    }
+}
+
+impl Drop for TestApp {
+    fn drop(&mut self) {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+    }
+}
+
+/// Test settings: 2 workers, fast polls, loopback callbacks allowed.
+pub fn settings(dir: &std::path::Path) -> Settings {
+    let mut s = Settings::with_data_dir(dir);
+    s.workers = Some(2);
+    s.poll_ms = 30;
+    s.lease_secs = 5;
+    s.shutdown_grace = 5;
+    s.allow_private_callbacks = true;
+    s.webhook_secret = Some("whsec_MfKQ9r8GKYqrTwjUPD8ILPZIo2LaLaSw".into());
+    s
+}
+
+pub async fn spawn_with(runner: Arc<dyn Runner>, configure: impl FnOnce(&mut Settings)) -> TestApp {
+    let dir = tempfile::tempdir().unwrap();
+    spawn_in(dir, runner, configure).await
+}
+
+/// A server with its data in `dir` (several servers may share one
+/// database and blob store: pass the same paths through `configure`).
+pub async fn spawn_in(
+    dir: tempfile::TempDir,
+    runner: Arc<dyn Runner>,
+    configure: impl FnOnce(&mut Settings),
+) -> TestApp {
+    let mut s = settings(dir.path());
+    configure(&mut s);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let base = format!("http://{}", listener.local_addr().unwrap());
+    let state = AppState::new(s, runner).await.unwrap();
+    let (tx, rx) = oneshot::channel::<()>();
+    let handle = tokio::spawn(serve_state(state.clone(), listener, async move {
+        let _ = rx.await;
+    }));
+    TestApp {
+        base,
+        client: reqwest::Client::new(),
+        state,
+        dir,
+        shutdown: Some(tx),
+        handle: Some(handle),
+    }
+}
+
+/// A server whose jobs emit frames at once.
+pub async fn spawn() -> TestApp {
+    spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |_| {}).await
+}
+
+/// Asserts the uniform error body and returns the code.
+pub fn error_code(body: &Value) -> &str {
+    assert!(
+        body["error"]["message"].is_string(),
+        "not an error body: {body}"
+    );
+    body["error"]["code"].as_str().expect("error code")
+}

@@ -1,0 +1,263 @@
+//! API keys, tenancy isolation, rate limits and the uniform error body of
+//! axum's own rejections.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde_json::{Value, json};
+use treemorph::jobs::testing::TestRunner;
+
+use crate::common::{error_code, spawn, spawn_with};
+
+async fn send(
+    app: &crate::common::TestApp,
+    method: reqwest::Method,
+    path: &str,
+    key: Option<&str>,
+    body: Option<Value>,
+) -> (u16, Value) {
+    let mut req = app.client.request(method, app.url(path));
+    if let Some(k) = key {
+        req = req.bearer_auth(k);
+    }
+    if let Some(b) = body {
+        req = req.json(&b);
+    }
+    let r = req.send().await.unwrap();
+    let status = r.status().as_u16();
+    (status, r.json().await.unwrap_or(Value::Null))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn each_key_sees_only_its_own_trees_and_jobs() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.api_keys = vec!["alice-key".into(), "bob-key".into()];
+    })
+    .await;
+    use reqwest::Method;
+    let alice = Some("alice-key");
+    let bob = Some("bob-key");
+    // No key, or a wrong one: 401.
+    for key in [None, Some("mallory")] {
+        let (s, b) = send(&app, Method::GET, "/v1/trees", key, None).await;
+        assert_eq!((s, error_code(&b)), (401, "unauthorized"));
+    }
+    let r = app.get("/v1/jobs").await;
+    assert_eq!(r.headers()["www-authenticate"], "Bearer");
+    // Ops endpoints need no key.
+    assert_eq!(app.get("/healthz").await.status(), 200);
+
+    let spec = json!({"preset": "maple", "seed": 1, "size": 100});
+    let (_, t1) = send(
+        &app,
+        Method::POST,
+        "/v1/trees/generate",
+        alice,
+        Some(spec.clone()),
+    )
+    .await;
+    let (_, t2) = send(
+        &app,
+        Method::POST,
+        "/v1/trees/generate",
+        alice,
+        Some(spec.clone()),
+    )
+    .await;
+    let (t1, t2) = (t1["id"].as_str().unwrap(), t2["id"].as_str().unwrap());
+    let (s, job) = send(
+        &app,
+        Method::POST,
+        "/v1/jobs",
+        alice,
+        Some(json!({"kind": "morph", "source": t1, "target": t2, "frames": 3})),
+    )
+    .await;
+    assert_eq!(s, 202);
+    let job = job["id"].as_str().unwrap().to_owned();
+    for _ in 0..200 {
+        let (_, j) = send(&app, Method::GET, &format!("/v1/jobs/{job}"), alice, None).await;
+        if j["status"] == "succeeded" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // Alice sees everything of hers.
+    for path in [
+        format!("/v1/trees/{t1}"),
+        format!("/v1/trees/{t1}/model.glb"),
+        format!("/v1/jobs/{job}/animation.glb"),
+        format!("/v1/jobs/{job}/frames/0.glb"),
+    ] {
+        let r = app
+            .client
+            .get(app.url(&path))
+            .bearer_auth("alice-key")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200, "{path}");
+    }
+    // Bob: every route with Alice's ids is a 404, exactly like a missing id.
+    let gets = [
+        format!("/v1/trees/{t1}"),
+        format!("/v1/trees/{t1}/model.glb"),
+        format!("/v1/trees/{t1}/tree.json"),
+        format!("/v1/trees/{t1}/analysis"),
+        format!("/v1/jobs/{job}"),
+        format!("/v1/jobs/{job}/events"),
+        format!("/v1/jobs/{job}/stream"),
+        format!("/v1/jobs/{job}/frames/0.glb"),
+        format!("/v1/jobs/{job}/animation.glb"),
+        format!("/v1/jobs/{job}/metrics.json"),
+    ];
+    for path in &gets {
+        let (s, b) = send(&app, Method::GET, path, bob, None).await;
+        assert_eq!((s, error_code(&b)), (404, "not_found"), "{path}");
+    }
+    for path in [format!("/v1/trees/{t1}"), format!("/v1/jobs/{job}")] {
+        let (s, b) = send(&app, Method::DELETE, &path, bob, None).await;
+        assert_eq!((s, error_code(&b)), (404, "not_found"), "{path}");
+    }
+    let (s, b) = send(
+        &app,
+        Method::POST,
+        "/v1/jobs",
+        bob,
+        Some(json!({"kind": "morph", "source": t1, "target": t2, "frames": 3})),
+    )
+    .await;
+    assert_eq!((s, error_code(&b)), (404, "tree_not_found"));
+    for path in ["/v1/trees", "/v1/jobs"] {
+        let (s, page) = send(&app, Method::GET, path, bob, None).await;
+        assert_eq!(s, 200);
+        assert_eq!(page["items"].as_array().unwrap().len(), 0, "{path}");
+        let (_, page) = send(&app, Method::GET, path, alice, None).await;
+        assert!(!page["items"].as_array().unwrap().is_empty(), "{path}");
+    }
+    // Alice's tree still exists after Bob's delete attempt.
+    let (s, _) = send(&app, Method::GET, &format!("/v1/trees/{t1}"), alice, None).await;
+    assert_eq!(s, 200);
+    app.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_rate_limit_is_per_key_with_retry_after() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.api_keys = vec!["a".into(), "b".into()];
+        s.rate_limit = 1.0;
+        s.rate_burst = 5;
+    })
+    .await;
+    let mut limited = None;
+    for i in 0..8 {
+        let r = app
+            .client
+            .get(app.url("/v1/trees"))
+            .bearer_auth("a")
+            .send()
+            .await
+            .unwrap();
+        if r.status() == 429 {
+            limited = Some((i, r));
+            break;
+        }
+    }
+    let (i, r) = limited.expect("the burst runs out");
+    assert_eq!(i, 5, "the burst is 5 requests");
+    assert!(
+        r.headers()["retry-after"]
+            .to_str()
+            .unwrap()
+            .parse::<u64>()
+            .unwrap()
+            >= 1
+    );
+    assert_eq!(error_code(&r.json().await.unwrap()), "rate_limited");
+    // Another key is unaffected.
+    let r = app
+        .client
+        .get(app.url("/v1/trees"))
+        .bearer_auth("b")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    app.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn axum_rejections_get_the_uniform_body() {
+    let app = spawn().await;
+    let (s, b) = app.get_json("/no/such/route").await;
+    assert_eq!((s, error_code(&b)), (404, "not_found"));
+    let (s, b) = app.get_json("/v1/jobs/x/y/z").await;
+    assert_eq!((s, error_code(&b)), (404, "not_found"));
+    let r = app.client.put(app.url("/v1/trees")).send().await.unwrap();
+    assert_eq!(r.status(), 405);
+    assert_eq!(r.headers()["content-type"], "application/json");
+    assert_eq!(error_code(&r.json().await.unwrap()), "method_not_allowed");
+    let r = app.client.patch(app.url("/healthz")).send().await.unwrap();
+    assert_eq!(r.status(), 405);
+    assert_eq!(error_code(&r.json().await.unwrap()), "method_not_allowed");
+    // Bodies over the JSON limit.
+    let r = app
+        .client
+        .post(app.url("/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(vec![b' '; 3 * 1024 * 1024])
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 413);
+    assert_eq!(error_code(&r.json().await.unwrap()), "payload_too_large");
+    app.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_clients_are_cut_off_by_the_header_read_timeout() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.header_read_timeout = 1
+    })
+    .await;
+    let addr = app.base.trim_start_matches("http://").to_owned();
+    let mut stream = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    stream
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .unwrap();
+    // Never finish the headers: the server must close the connection.
+    let mut buf = Vec::new();
+    let read = tokio::time::timeout(Duration::from_secs(5), stream.read_to_end(&mut buf)).await;
+    assert!(read.is_ok(), "the connection was not closed");
+    app.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cors_answers_configured_origins_only() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.cors_origins = vec!["https://viewer.example".into()];
+    })
+    .await;
+    let r = app
+        .client
+        .get(app.url("/v1/trees"))
+        .header("origin", "https://viewer.example")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        r.headers()["access-control-allow-origin"],
+        "https://viewer.example"
+    );
+    let r = app
+        .client
+        .get(app.url("/v1/trees"))
+        .header("origin", "https://evil.example")
+        .send()
+        .await
+        .unwrap();
+    assert!(r.headers().get("access-control-allow-origin").is_none());
+    app.stop().await;
+}

@@ -98,6 +98,10 @@ pub struct Settings {
     /// Burst size of the rate limit (bucket capacity).
     #[arg(long, env = "TREEMORPH_RATE_BURST", default_value_t = 50)]
     pub rate_burst: u32,
+    /// Directory of the web viewer (`index.html`, its modules and, after
+    /// `npm ci --prefix web`, `node_modules/` with three.js), served at `/`.
+    #[arg(long, env = "TREEMORPH_WEB_DIR", default_value = "web")]
+    pub web_dir: PathBuf,
     /// Origins allowed by CORS (comma-separated; `*` for any). None by
     /// default.
     #[arg(long, env = "TREEMORPH_CORS_ORIGINS", value_delimiter = ',')]

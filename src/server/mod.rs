@@ -33,6 +33,7 @@ pub mod jobs;
 pub mod openapi;
 pub mod stream;
 pub mod trees;
+pub mod web;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -295,7 +296,10 @@ pub fn router(state: AppState) -> Router {
     if state.settings().role.serves_api() {
         app = app.merge(api_routes(&state));
     }
-    let (app, _) = app.merge(health::routes()).split_for_parts();
+    let (mut app, _) = app.merge(health::routes()).split_for_parts();
+    if state.settings().role.serves_api() {
+        app = app.merge(web::routes(&state));
+    }
     let cors = cors(state.settings());
     app.fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)

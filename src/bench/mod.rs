@@ -9,10 +9,10 @@
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
-use treemorph_generate::{GenerateOptions, Preset};
-use treemorph_tree::Tree;
 
 use crate::cli::Failure;
+
+mod stages;
 
 /// Arguments of `treemorph bench`.
 #[derive(Debug, clap::Args)]
@@ -47,6 +47,9 @@ pub struct Row {
     pub throughput: String,
     /// The target for this row, milliseconds, when there is one.
     pub target_ms: Option<f64>,
+    /// Other figures of the row (sizes, ratios).
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub note: String,
 }
 
 /// Times `f`: a few runs, then more until about a second has passed.
@@ -71,7 +74,7 @@ pub fn measure(quick: bool, mut f: impl FnMut()) -> (f64, f64, usize) {
     (times[times.len() / 2], times[0], times.len())
 }
 
-fn per_second(count: usize, unit: &str, ms: f64) -> String {
+pub(crate) fn per_second(count: usize, unit: &str, ms: f64) -> String {
     let rate = count as f64 / (ms / 1e3);
     if rate >= 1e6 {
         format!("{:.2} M {unit}/s", rate / 1e6)
@@ -82,7 +85,7 @@ fn per_second(count: usize, unit: &str, ms: f64) -> String {
     }
 }
 
-fn thousands(n: usize) -> String {
+pub(crate) fn thousands(n: usize) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
@@ -94,127 +97,28 @@ fn thousands(n: usize) -> String {
     out
 }
 
-fn tree(preset: Preset, seed: u64, size: u32) -> Tree {
-    treemorph_generate::generate(&GenerateOptions::new(preset, seed).with_size(size))
-        .expect("bench sizes are within the generator's range")
-}
-
-/// Rows of the foundation: generating and exporting trees.
-fn foundation_rows(quick: bool, rows: &mut Vec<Row>) {
-    for (size, target) in [(1_000u32, None), (20_000, Some(200.0))] {
-        let preset = Preset::Eucalyptus;
-        let sample = tree(preset, 1, size);
-        let branches = sample.skeleton().branch_count();
-        let input = format!("{} seed 1", preset.name());
-        let (median, min, runs) = measure(quick, || {
-            std::hint::black_box(tree(preset, 1, size));
-        });
-        rows.push(Row {
-            stage: "generate".into(),
-            input: input.clone(),
-            size: format!("{} branches", thousands(branches)),
-            median_ms: median,
-            min_ms: min,
-            runs,
-            throughput: per_second(branches, "branches", median),
-            target_ms: None,
-        });
-        let options = treemorph_gltf::ExportOptions::default();
-        let (median, min, runs) = measure(quick, || {
-            std::hint::black_box(treemorph_gltf::export_glb(&sample, &options).expect("export"));
-        });
-        rows.push(Row {
-            stage: "export glb".into(),
-            input: input.clone(),
-            size: format!("{} branches", thousands(branches)),
-            median_ms: median,
-            min_ms: min,
-            runs,
-            throughput: per_second(branches, "branches", median),
-            target_ms: None,
-        });
-        let (median, min, runs) = measure(quick, || {
-            let t = tree(preset, 1, size);
-            std::hint::black_box(treemorph_gltf::export_glb(&t, &options).expect("export"));
-        });
-        rows.push(Row {
-            stage: "generate + export glb".into(),
-            input,
-            size: format!("{} branches", thousands(branches)),
-            median_ms: median,
-            min_ms: min,
-            runs,
-            throughput: per_second(branches, "branches", median),
-            target_ms: target,
-        });
-    }
-}
-
-/// A tree with every `k`-th leaf kept, so leaf counts match the papers'
-/// inputs (their trees carry about one leaf per chain; ours carry several).
-fn thinned(tree: &Tree, keep_leaves: usize) -> Tree {
-    let mut parts = tree.clone().into_parts();
-    let k = parts.leaves.len().div_ceil(keep_leaves.max(1)).max(1);
-    parts.leaves = parts.leaves.into_iter().step_by(k).collect();
-    Tree::new(parts, &treemorph_tree::Limits::default()).expect("a subset of valid leaves is valid")
-}
-
-/// Rows of the skeleton-lobe analysis at the morphing paper's sizes
-/// (Table 2: 4,507 chains / 4,436 leaves and 20,195 chains / 5,919 leaves).
-fn analysis_rows(quick: bool, rows: &mut Vec<Row>) {
-    use treemorph_analysis::{Analysis, AnalysisOptions};
-    let options = AnalysisOptions::default();
-    for (preset, size, leaves, target) in [
-        (Preset::Eucalyptus, 15_000u32, None, None),
-        (Preset::Eucalyptus, 15_000, Some(4_436), Some(50.0)),
-        (Preset::Conifer, 15_000, Some(4_436), Some(50.0)),
-        (Preset::Eucalyptus, 65_000, Some(5_919), Some(200.0)),
-        (Preset::Dichotomous, 46_000, Some(5_919), Some(200.0)),
-    ] {
-        let full = tree(preset, 1, size);
-        let input_tree = match leaves {
-            Some(n) => thinned(&full, n),
-            None => full,
-        };
-        let analysis = Analysis::of(&input_tree, &options).expect("generated trees analyse");
-        let chains = analysis.chains().len();
-        let (median, min, runs) = measure(quick, || {
-            std::hint::black_box(Analysis::of(&input_tree, &options).expect("analysis"));
-        });
-        rows.push(Row {
-            stage: "analysis".into(),
-            input: format!(
-                "{} seed 1{}",
-                preset.name(),
-                if leaves.is_some() {
-                    ", leaves thinned"
-                } else {
-                    ""
-                }
-            ),
-            size: format!(
-                "{} chains, {} leaves",
-                thousands(chains),
-                thousands(input_tree.leaves().len())
-            ),
-            median_ms: median,
-            min_ms: min,
-            runs,
-            throughput: per_second(chains, "chains", median),
-            target_ms: target,
-        });
-    }
-}
-
 /// A group of cases and the stage names its rows use.
 type Group = (fn(bool, &mut Vec<Row>), &'static [&'static str]);
 
 const GROUPS: &[Group] = &[
     (
-        foundation_rows,
+        stages::foundation_rows,
         &["generate", "export glb", "generate + export glb"],
     ),
-    (analysis_rows, &["analysis"]),
+    (stages::analysis_rows, &["analysis"]),
+    (stages::import_rows, &["import glb"]),
+    (
+        stages::morph_rows,
+        &["morph plan", "morph frame", "morph frame + meshes"],
+    ),
+    (
+        stages::sketch_rows,
+        &["sketch plan", "sketch frame", "sketch frame + meshes"],
+    ),
+    (
+        stages::output_rows,
+        &["mesh frame", "per-frame glb", "delta stream", "animated glb"],
+    ),
 ];
 
 /// Runs every case whose stage contains `filter` (all without one).
@@ -241,8 +145,9 @@ pub fn table(rows: &[Row]) -> String {
         "runs",
         "throughput",
         "target",
+        "note",
     ];
-    let cells: Vec<[String; 8]> = rows
+    let cells: Vec<[String; 9]> = rows
         .iter()
         .map(|r| {
             [
@@ -258,6 +163,7 @@ pub fn table(rows: &[Row]) -> String {
                     Some(t) => format!("≤ {t} ms ✗"),
                     None => String::new(),
                 },
+                r.note.clone(),
             ]
         })
         .collect();
@@ -330,12 +236,14 @@ mod tests {
             runs: 3,
             throughput: "1 branches/s".into(),
             target_ms,
+            note: String::new(),
         };
         let text = table(&[row(5.0, Some(10.0)), row(50.0, Some(10.0)), row(1.0, None)]);
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 5);
         assert!(lines[2].ends_with("≤ 10 ms ✓"), "{text}");
         assert!(lines[3].ends_with("≤ 10 ms ✗"), "{text}");
+        assert!(lines[2].contains("maple"), "{text}");
         assert_eq!(lines[0].find("input"), lines[2].find("maple"));
     }
 }

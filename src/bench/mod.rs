@@ -117,7 +117,12 @@ const GROUPS: &[Group] = &[
     ),
     (
         stages::output_rows,
-        &["mesh frame", "per-frame glb", "delta stream", "animated glb"],
+        &[
+            "mesh frame",
+            "per-frame glb",
+            "delta stream",
+            "animated glb",
+        ],
     ),
 ];
 

@@ -65,12 +65,16 @@ pub(super) fn foundation_rows(quick: bool, rows: &mut Vec<Row>) {
     }
 }
 
-/// A tree with every `k`-th leaf kept, so leaf counts match the papers'
+/// A tree with `keep_leaves` leaves picked evenly, so leaf counts match the papers.
 /// inputs (their trees carry about one leaf per chain; ours carry several).
 pub(super) fn thinned(tree: &Tree, keep_leaves: usize) -> Tree {
     let mut parts = tree.clone().into_parts();
-    let k = parts.leaves.len().div_ceil(keep_leaves.max(1)).max(1);
-    parts.leaves = parts.leaves.into_iter().step_by(k).collect();
+    let n = parts.leaves.len();
+    if n > keep_leaves {
+        parts.leaves = (0..keep_leaves)
+            .map(|i| parts.leaves[i * n / keep_leaves])
+            .collect();
+    }
     Tree::new(parts, &treemorph_tree::Limits::default()).expect("a subset of valid leaves is valid")
 }
 
@@ -258,8 +262,8 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
             let probes: Vec<_> = [0.0, 0.5, 1.0].iter().map(|&t| plan.frame(t)).collect();
             treemorph_gltf::frames::max_radii(&probes)
         };
-        let mut meshes =
-            FrameMeshes::new(plan.topology(), &radii, &StreamOptions::default().mesh).expect("mesh");
+        let mut meshes = FrameMeshes::new(plan.topology(), &radii, &StreamOptions::default().mesh)
+            .expect("mesh");
         let timing = measure(quick, || {
             morpher.morph(next_t(), &mut frame);
             std::hint::black_box(meshes.mesh(&frame).expect("mesh"));
@@ -339,8 +343,8 @@ pub(super) fn sketch_rows(quick: bool, rows: &mut Vec<Row>) {
             let probes: Vec<_> = [0.0, 0.5, 1.0].iter().map(|&t| sketcher.frame(t)).collect();
             treemorph_gltf::frames::max_radii(&probes)
         };
-        let mut meshes =
-            FrameMeshes::new(plan.topology(), &radii, &StreamOptions::default().mesh).expect("mesh");
+        let mut meshes = FrameMeshes::new(plan.topology(), &radii, &StreamOptions::default().mesh)
+            .expect("mesh");
         let timing = measure(quick, || {
             sketcher.deform(next_t(), &mut frame);
             std::hint::black_box(meshes.mesh(&frame).expect("mesh"));
@@ -404,7 +408,8 @@ pub(super) fn output_rows(quick: bool, rows: &mut Vec<Row>) {
         ),
     ));
 
-    let mut writer = FrameGlbWriter::new(topology, radii, &FrameGlbOptions::default()).expect("glb");
+    let mut writer =
+        FrameGlbWriter::new(topology, radii, &FrameGlbOptions::default()).expect("glb");
     let mut glb = Vec::new();
     writer.write_into(&frame, &mut glb).expect("glb");
     let timing = measure(quick, || {
@@ -419,11 +424,15 @@ pub(super) fn output_rows(quick: bool, rows: &mut Vec<Row>) {
         timing,
         format!("{:.0} MB/s", glb_bytes as f64 / 1e3 / timing.0),
         None,
-        format!("{:.1} MB per frame (24-point contour leaves)", glb_bytes as f64 / 1e6),
+        format!(
+            "{:.1} MB per frame (24-point contour leaves)",
+            glb_bytes as f64 / 1e6
+        ),
     ));
 
-    let mut stream = DeltaStreamWriter::new(topology, radii, sway.bounds(), &StreamOptions::default())
-        .expect("stream");
+    let mut stream =
+        DeltaStreamWriter::new(topology, radii, sway.bounds(), &StreamOptions::default())
+            .expect("stream");
     let mut out = Vec::new();
     stream.write_frame(&frame, &mut out).expect("stream");
     let mut bytes = 0usize;
@@ -461,8 +470,8 @@ pub(super) fn output_rows(quick: bool, rows: &mut Vec<Row>) {
         let mut written = 0u64;
         // One run: the float file alone is gigabytes (counted, not kept).
         let timing = measure(true, || {
-            let mut builder =
-                AnimatedGlbBuilder::new(topology, radii, sway.bounds(), &options).expect("animated");
+            let mut builder = AnimatedGlbBuilder::new(topology, radii, sway.bounds(), &options)
+                .expect("animated");
             for k in 0..frames {
                 builder.push(&sway.frame(k)).expect("keyframe");
             }

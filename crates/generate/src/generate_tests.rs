@@ -888,3 +888,49 @@ fn foliage_covers_the_crown() {
         assert!(lai >= 0.7, "{preset}: leaf area index {lai}");
     }
 }
+
+/// Regression: the needle texture's thin needles covered a fifth of the
+/// billboard, so conifers read as bare branches unless seen up close. A
+/// spray of needles seen from the side covers most of its outline.
+#[test]
+fn the_needle_spray_covers_most_of_its_billboard() {
+    let coverage = LeafShape::Needles.coverage();
+    assert!(coverage >= 0.4, "needle spray coverage {coverage}");
+}
+
+/// Every blade keeps its cut-out shape at an eighth of the resolution (a
+/// box filter, like the mipmap level a viewer samples for a leaf a few
+/// pixels tall), so alpha-tested foliage does not thin out at a distance.
+#[test]
+fn leaf_textures_keep_their_shape_when_downsampled() {
+    for shape in LeafShape::ALL {
+        let image = shape.draw();
+        let (w, h) = (image.width as usize, image.height as usize);
+        let alpha = |x: usize, y: usize| f32::from(image.pixels[(y * w + x) * 4 + 3]) / 255.0;
+        let full = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| alpha(x, y) >= 0.5)
+            .count() as f32
+            / (w * h) as f32;
+        const F: usize = 8;
+        let (qw, qh) = (w / F, h / F);
+        let mut kept = 0;
+        for qy in 0..qh {
+            for qx in 0..qw {
+                let mean: f32 = (0..F * F)
+                    .map(|k| alpha(qx * F + k % F, qy * F + k / F))
+                    .sum::<f32>()
+                    / (F * F) as f32;
+                kept += usize::from(mean >= 0.5);
+            }
+        }
+        let small = kept as f32 / (qw * qh) as f32;
+        assert!(
+            small >= 0.75 * full,
+            "{}: {:.0} % of texels pass the alpha test at full size, {:.0} % at an eighth",
+            shape.name(),
+            100.0 * full,
+            100.0 * small
+        );
+    }
+}

@@ -522,22 +522,28 @@ fn needle_segments() -> Vec<Segment> {
         state ^= state << 5;
         (state & 0xffff) as f32 / 65535.0
     };
-    let count = 30;
+    // Dense, fairly thick needles: the spray must keep most of its alpha
+    // when a viewer samples a small mipmap level, or alpha-tested needles
+    // vanish as soon as the tree is a few hundred pixels tall.
+    let count = 40;
     for i in 0..count {
-        let y = 0.05 + 0.9 * i as f32 / count as f32;
+        let y = 0.04 + 0.92 * i as f32 / count as f32;
         for side in [-1.0f32, 1.0] {
-            let angle = (48.0 + 12.0 * (rnd() - 0.5)).to_radians();
-            let len = 0.2 * (1.0 - 0.4 * y) * (0.9 + 0.2 * rnd());
-            let ax = 0.008 * y;
-            let ay = y + 0.01 * (rnd() - 0.5);
-            let shade = 0.85 + 0.3 * rnd();
-            segs.push(Segment {
-                a: [ax, ay],
-                b: [ax + side * len * angle.sin(), ay + len * angle.cos()],
-                w0: 0.0065,
-                w1: 0.0035,
-                color: scale([0.15, 0.34, 0.17], shade),
-            });
+            for layer in 0..2 {
+                let spread = if layer == 0 { 52.0 } else { 32.0 };
+                let angle = (spread + 12.0 * (rnd() - 0.5)).to_radians();
+                let len = 0.22 * (1.0 - 0.4 * y) * (0.85 + 0.3 * rnd());
+                let ax = 0.008 * y;
+                let ay = y + 0.01 * (rnd() - 0.5);
+                let shade = 0.8 + 0.35 * rnd();
+                segs.push(Segment {
+                    a: [ax, ay],
+                    b: [ax + side * len * angle.sin(), ay + len * angle.cos()],
+                    w0: 0.02,
+                    w1: 0.011,
+                    color: scale([0.15, 0.34, 0.17], shade),
+                });
+            }
         }
     }
     segs

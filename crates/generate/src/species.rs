@@ -463,7 +463,10 @@ pub(crate) fn species(preset: Preset) -> Species {
             foliage: Foliage {
                 kinds: &CONIFER_LEAVES,
                 second_share: 0.2,
-                length: 0.18,
+                // Needle sprays: each billboard stands for a shoot's
+                // needles, so it is longer than one needle and there are
+                // several per internode.
+                length: 0.2,
                 per_internode: 2,
                 arrangement: LeafArrangement::Sides,
                 tip: 1,

@@ -35,8 +35,11 @@ use crate::mesh::{LeafShape, MeshBuffers, MeshOptions};
 #[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
 pub struct FrameGlbOptions {
-    /// Tube sides and leaf shape (default: [`MeshOptions::default`] with
-    /// [`LeafShape::Contour`] of 24 points).
+    /// Tube sides and leaf shape (default: 3 to 10 sides and
+    /// [`LeafShape::Contour`] of 12 points — the blade's alpha cuts out
+    /// its exact shape; the contour only has to carry the morph between
+    /// two outlines, and a frame stays a fraction of the size it would be
+    /// with finer outlines).
     pub mesh: MeshOptions,
     /// Leaf and bark blends are rounded to multiples of `1 / blend_steps`
     /// (default 16; at least 1): each distinct step present in a frame is
@@ -46,10 +49,9 @@ pub struct FrameGlbOptions {
 
 impl Default for FrameGlbOptions {
     fn default() -> FrameGlbOptions {
-        let mesh = MeshOptions {
-            leaf_shape: LeafShape::Contour { points: 24 },
-            ..MeshOptions::default()
-        };
+        let mesh = MeshOptions::default()
+            .with_sides(3, 10)
+            .with_leaf_shape(LeafShape::Contour { points: 12 });
         FrameGlbOptions {
             mesh,
             blend_steps: 16,

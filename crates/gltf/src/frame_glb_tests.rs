@@ -114,8 +114,8 @@ fn writes_the_meshers_output_under_the_static_names() {
         let uvs = parsed.vec2s(prim["attributes"]["TEXCOORD_0"].as_u64().unwrap() as usize);
         assert!(uvs == mesh.uvs, "{name}");
     }
-    // Contour leaves by default: 24 rim points and a centre each.
-    assert_eq!(l.vertex_count(), 4 * 25);
+    // Contour leaves by default: 12 rim points and a centre each.
+    assert_eq!(l.vertex_count(), 4 * 13);
 }
 
 #[test]
@@ -128,8 +128,8 @@ fn one_leaf_primitive_per_pair_and_blend_step() {
     let parsed = Parsed::new(&writer.write(&frame).unwrap());
     let prims = primitives(&parsed, "leaves");
     assert_eq!(prims.len(), 4);
-    let per_leaf = 24 * 3;
-    let per_vertex = 25;
+    let per_leaf = 12 * 3;
+    let per_vertex = 13;
     let mut seen = Vec::new();
     for prim in &prims {
         let indices = parsed.indices(prim["indices"].as_u64().unwrap() as usize);

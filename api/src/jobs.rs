@@ -210,13 +210,15 @@ pub struct MorphJobOptions {
     /// their length at once). Default `true`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub slow_down: Option<bool>,
-    /// Number of keyframes between which frames are interpolated; the
-    /// pipeline's default when absent.
+    /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
+    /// default 24, or `frames` when fewer.
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
     )]
     pub keyframes: Option<u32>,
+    /// Encoding of `animation.glb`'s morph targets. Default `float`.
+    pub animation_encoding: AnimationEncoding,
 }
 
 /// A sketch job: `tree` is animated into the crown `sketch` drawn from
@@ -310,6 +312,21 @@ pub enum SketchMethod {
     SingleCage,
 }
 
+/// How `animation.glb` stores its morph targets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum AnimationEncoding {
+    /// 32-bit floats: core glTF, plays everywhere (largest file).
+    #[default]
+    Float,
+    /// 16-bit positions and 8-bit normals (`KHR_mesh_quantization`):
+    /// about half the size.
+    Quantized,
+    /// Quantised and compressed (`EXT_meshopt_compression`): about a sixth
+    /// of the float size; needs a viewer with the meshopt decoder.
+    Meshopt,
+}
+
 /// What the sketch is fitted to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
@@ -327,12 +344,15 @@ pub struct SketchJobOptions {
     /// What the sketch is fitted to; the pipeline's default when absent.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit: Option<SketchFit>,
-    /// Number of keyframes; the pipeline's default when absent.
+    /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
+    /// default 24, or `frames` when fewer.
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
     )]
     pub keyframes: Option<u32>,
+    /// Encoding of `animation.glb`'s morph targets. Default `float`.
+    pub animation_encoding: AnimationEncoding,
 }
 
 /// A job's life cycle: `queued` → `running` → `succeeded` | `failed` |

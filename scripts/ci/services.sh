@@ -4,14 +4,24 @@
 #   services_start DIR LOGDIR   # sets TREEMORPH_TEST_POSTGRES_URL, TREEMORPH_TEST_S3_URL
 #                               # and exports the AWS_* variables for the S3 server
 #   services_stop               # (call it from an EXIT trap)
+#   services_createdb NAME      # a fresh database; prints its URL
 #
 # Needs, and installs nothing itself:
 #   Debian: postgresql-15   (apt-get install -y postgresql-15)
-#   PyPI:   moto[server]    (pip install 'moto[server]'; gives moto_server)
+#   PyPI:   moto[server]    (pip install 'moto[server]'; gives moto_server —
+#                            taken from target/ci-venv, where scripts/setup
+#                            installs scripts/ci/requirements.txt, else PATH)
 #   python3                 (free ports, the bucket)
 # As root the database server runs as the `postgres` user (it refuses root).
 
 PG_BIN=${PG_BIN:-/usr/lib/postgresql/15/bin}
+if [ -z "${MOTO_SERVER:-}" ]; then
+  if [ -x target/ci-venv/bin/moto_server ]; then
+    MOTO_SERVER=$PWD/target/ci-venv/bin/moto_server
+  else
+    MOTO_SERVER=moto_server
+  fi
+fi
 _services_pg_data=""
 _services_moto_pid=""
 
@@ -32,7 +42,7 @@ services_start() {
     touch "$logs/postgres.log" && chown postgres "$logs/postgres.log"
   fi
   [ -x "$PG_BIN/initdb" ] || { echo "PostgreSQL 15 is missing: apt-get install -y postgresql-15" >&2; return 1; }
-  command -v moto_server >/dev/null || { echo "moto_server is missing: pip install 'moto[server]'" >&2; return 1; }
+  command -v "$MOTO_SERVER" >/dev/null || { echo "moto_server is missing: pip install 'moto[server]'" >&2; return 1; }
 
   local pg_port s3_port
   pg_port=$(_free_port)
@@ -42,9 +52,10 @@ services_start() {
   _as_pg "$PG_BIN/pg_ctl" -D "$_services_pg_data" -l "$logs/postgres.log" -w -t 60 \
     -o "-p $pg_port -k $dir/pg -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=300" start >/dev/null
   export TREEMORPH_TEST_POSTGRES_URL="postgres://postgres@127.0.0.1:$pg_port"
+  SERVICES_PG_PORT=$pg_port
 
   s3_port=$(_free_port)
-  moto_server -H 127.0.0.1 -p "$s3_port" >"$logs/moto.log" 2>&1 &
+  "$MOTO_SERVER" -H 127.0.0.1 -p "$s3_port" >"$logs/moto.log" 2>&1 &
   _services_moto_pid=$!
   export AWS_ACCESS_KEY_ID=treemorph-test AWS_SECRET_ACCESS_KEY=treemorph-test
   export AWS_REGION=us-east-1 AWS_ENDPOINT_URL="http://127.0.0.1:$s3_port"
@@ -76,4 +87,10 @@ services_stop() {
   fi
   _services_pg_data=""
   _services_moto_pid=""
+}
+
+services_createdb() {
+  "$PG_BIN/psql" -q -h 127.0.0.1 -p "$SERVICES_PG_PORT" -U postgres -d postgres \
+    -c "CREATE DATABASE $1" >/dev/null
+  echo "$TREEMORPH_TEST_POSTGRES_URL/$1"
 }

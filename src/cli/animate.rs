@@ -12,8 +12,8 @@ use std::sync::Arc;
 use anyhow::{Context, anyhow};
 use indicatif::ProgressBar;
 use treemorph_api::jobs::{
-    JobRequest, LeafAssignment, Matching, MorphJobOptions, MorphRequest, Outputs, SketchFit,
-    SketchInput, SketchJobOptions, SketchMethod, SketchRequest, View,
+    AnimationEncoding, JobRequest, LeafAssignment, Matching, MorphJobOptions, MorphRequest,
+    Outputs, SketchFit, SketchInput, SketchJobOptions, SketchMethod, SketchRequest, View,
 };
 use treemorph_tree::{Limits, Tree};
 
@@ -58,6 +58,32 @@ pub struct Common {
     /// Keyframes of animation.glb (2..=frames; default 24 or frames).
     #[arg(long)]
     keyframes: Option<u32>,
+    /// How animation.glb stores its morph targets: float (core glTF, plays
+    /// everywhere), quantized (KHR_mesh_quantization, about half the size)
+    /// or meshopt (EXT_meshopt_compression, about a sixth).
+    #[arg(long, value_enum, default_value_t = EncodingArg::Float)]
+    animation_encoding: EncodingArg,
+}
+
+/// `--animation-encoding` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum EncodingArg {
+    /// 32-bit floats.
+    Float,
+    /// KHR_mesh_quantization.
+    Quantized,
+    /// EXT_meshopt_compression.
+    Meshopt,
+}
+
+impl From<EncodingArg> for AnimationEncoding {
+    fn from(e: EncodingArg) -> AnimationEncoding {
+        match e {
+            EncodingArg::Float => AnimationEncoding::Float,
+            EncodingArg::Quantized => AnimationEncoding::Quantized,
+            EncodingArg::Meshopt => AnimationEncoding::Meshopt,
+        }
+    }
 }
 
 /// Arguments of `treemorph morph`.
@@ -257,6 +283,7 @@ pub(super) fn morph(args: &MorphArgs) -> Result<(), Failure> {
             },
             slow_down: args.no_slow_down.then_some(false),
             keyframes: args.common.keyframes,
+            animation_encoding: args.common.animation_encoding.into(),
         },
         outputs: outputs(&args.common.format),
         callback_url: None,
@@ -296,6 +323,7 @@ pub(super) fn sketch(args: &SketchArgs) -> Result<(), Failure> {
                 _ => None,
             },
             keyframes: args.common.keyframes,
+            animation_encoding: args.common.animation_encoding.into(),
         },
         outputs: outputs(&args.common.format),
         callback_url: None,

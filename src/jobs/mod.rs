@@ -1,6 +1,6 @@
-//! Jobs: the durable queue ([`queue`]), the worker pool ([`worker`]), the
-//! sink through which a running pipeline publishes outputs ([`sink`]) and
-//! webhook delivery ([`webhooks`]).
+//! Jobs: the durable queue ([`queue`], its claim benchmark in [`bench`]),
+//! the worker pool ([`worker`]), the sink through which a running pipeline
+//! publishes outputs ([`sink`]) and webhook delivery ([`webhooks`]).
 //!
 //! # How a job runs
 //! 1. `POST /v1/jobs` validates the request (trees exist, frame count,
@@ -29,6 +29,7 @@
 //! the row (`cancel_requested`, read by the job's watcher every poll) and a
 //! worker in this process directly through the [`Hub`].
 
+pub mod bench;
 pub mod queue;
 pub mod sink;
 pub mod testing;

@@ -21,7 +21,7 @@ use tokio::runtime::Handle;
 
 use super::Hub;
 use super::queue::{self, file_key, frame_delta_key, frame_glb_key, header_key};
-use crate::pipeline::{FrameOutput, JobSink, SinkError};
+use crate::pipeline::{Attempt, FrameOutput, JobSink, SinkError};
 use crate::store::{Blobs, Db};
 use crate::telemetry::Metrics;
 
@@ -61,6 +61,7 @@ pub struct BlobSink {
     metrics: Arc<Metrics>,
     kind: &'static str,
     job: String,
+    attempt: u32,
     token: String,
     prefix: String,
     flags: Arc<Flags>,
@@ -84,7 +85,7 @@ impl std::fmt::Debug for BlobSink {
 }
 
 impl BlobSink {
-    /// A sink for the attempt `token` of job `job`.
+    /// A sink for the attempt `token` (number `attempt`) of job `job`.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         rt: Handle,
@@ -94,6 +95,7 @@ impl BlobSink {
         metrics: Arc<Metrics>,
         kind: &'static str,
         job: &str,
+        attempt: u32,
         token: &str,
         flags: Arc<Flags>,
     ) -> BlobSink {
@@ -105,6 +107,7 @@ impl BlobSink {
             metrics,
             kind,
             job: job.to_owned(),
+            attempt,
             token: token.to_owned(),
             prefix: queue::attempt_prefix(job, token),
             flags,
@@ -273,5 +276,13 @@ impl JobSink for BlobSink {
             self.files.push(name.to_owned());
         }
         Ok(())
+    }
+
+    fn attempt(&self) -> Option<Attempt<'_>> {
+        Some(Attempt {
+            job: &self.job,
+            number: self.attempt,
+            token: &self.token,
+        })
     }
 }

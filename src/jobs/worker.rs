@@ -337,6 +337,7 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
         services.metrics.clone(),
         row.kind.as_str(),
         &row.id,
+        row.attempt,
         token,
         flags,
     ));

@@ -68,6 +68,25 @@ pub trait JobSink {
     /// Publishes a whole-sequence file: `animation.glb`, `stream.tmd`,
     /// `metrics.json`.
     fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError>;
+    /// The queue attempt this sink publishes for (`None` outside the queue,
+    /// e.g. the command line). Runners need not care; the test runner
+    /// stamps it into its outputs so the scale-out test can prove which
+    /// attempt every served byte came from.
+    fn attempt(&self) -> Option<Attempt<'_>> {
+        None
+    }
+}
+
+/// One attempt of a queued job (see [`crate::jobs::queue`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Attempt<'a> {
+    /// The job's id.
+    pub job: &'a str,
+    /// The attempt's number (the job's `attempt` counter after the claim).
+    pub number: u32,
+    /// The attempt's lease token: unique per claim, it fences the
+    /// attempt's writes and names the blob prefix of its outputs.
+    pub token: &'a str,
 }
 
 /// What a finished job reports.
@@ -120,3 +139,4 @@ pub fn default_runner() -> Arc<dyn Runner> {
 }
 
 mod runner;
+pub use runner::check_request;

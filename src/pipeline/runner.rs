@@ -14,9 +14,11 @@ use serde_json::{Value, json};
 use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_api::ErrorCode;
 use treemorph_api::jobs::{
-    JobRequest, LeafAssignment, Matching, MorphRequest, Outputs, SketchRequest,
+    AnimationEncoding, JobRequest, LeafAssignment, Matching, MorphRequest, Outputs, SketchRequest,
 };
-use treemorph_gltf::animated::{AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
+use treemorph_gltf::animated::{
+    AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, keyframe_indices,
+};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::frames::{EncodeError, max_radii};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
@@ -160,18 +162,26 @@ pub fn sketch_inputs(
     Ok((view, sketch, options))
 }
 
+/// Checks everything about a request that needs no tree: frame and
+/// keyframe counts, morph options, the sketch's camera and polyline. Every
+/// runner (the test runner too) applies it, so `POST /v1/jobs` refuses the
+/// same requests whichever runner a process was started with.
+pub fn check_request(request: &JobRequest) -> Result<(), JobError> {
+    match request {
+        JobRequest::Morph(r) => {
+            check_common(r.frames, r.options.keyframes)?;
+            morph_options(r).map(drop)
+        }
+        JobRequest::Sketch(r) => {
+            check_common(r.frames, r.options.keyframes)?;
+            sketch_inputs(r).map(drop)
+        }
+    }
+}
+
 impl Runner for PipelineRunner {
     fn check(&self, request: &JobRequest) -> Result<(), JobError> {
-        match request {
-            JobRequest::Morph(r) => {
-                check_common(r.frames, r.options.keyframes)?;
-                morph_options(r).map(drop)
-            }
-            JobRequest::Sketch(r) => {
-                check_common(r.frames, r.options.keyframes)?;
-                sketch_inputs(r).map(drop)
-            }
-        }
+        check_request(request)
     }
 
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
@@ -222,7 +232,10 @@ fn run_morph(
         plan.topology(),
         request.frames,
         &request.outputs,
-        request.options.keyframes,
+        Animation {
+            keyframes: request.options.keyframes,
+            encoding: request.options.animation_encoding,
+        },
         |t, frame| morpher.morph(t, frame),
         |frame| match meter.measure(frame) {
             Ok(m) => series.push(&m),
@@ -307,7 +320,10 @@ fn run_sketch(
         plan.topology(),
         request.frames,
         &request.outputs,
-        request.options.keyframes,
+        Animation {
+            keyframes: request.options.keyframes,
+            encoding: request.options.animation_encoding,
+        },
         |t, frame| sketcher.deform(t, frame),
         |frame| {
             let m = meter.measure(frame);
@@ -374,13 +390,19 @@ fn frame_bounds(frame: &Frame) -> Aabb {
     b
 }
 
+/// How `animation.glb` is written.
+struct Animation {
+    keyframes: Option<u32>,
+    encoding: AnimationEncoding,
+}
+
 /// Computes `frames` frames with `eval`, measures each with `measure` and
 /// publishes them through `sink` in every requested format.
 fn render(
     topology: &FrameTopology,
     frames: u32,
     outputs: &Outputs,
-    keyframes: Option<u32>,
+    animation: Animation,
     mut eval: impl FnMut(f32, &mut Frame),
     mut measure: impl FnMut(&Frame),
     sink: &mut dyn JobSink,
@@ -420,10 +442,17 @@ fn render(
     };
     let picks = keyframe_indices(
         frames as usize,
-        keyframes.unwrap_or(DEFAULT_KEYFRAMES).min(frames) as usize,
+        animation.keyframes.unwrap_or(DEFAULT_KEYFRAMES).min(frames) as usize,
     );
     let mut animated = if outputs.animated {
-        let options = AnimatedOptions::default().with_keyframes(picks.len());
+        let encoding = match animation.encoding {
+            AnimationEncoding::Float => AnimatedEncoding::Float,
+            AnimationEncoding::Quantized => AnimatedEncoding::Quantized,
+            AnimationEncoding::Meshopt => AnimatedEncoding::Meshopt,
+        };
+        let options = AnimatedOptions::default()
+            .with_keyframes(picks.len())
+            .with_encoding(encoding);
         Some(AnimatedGlbBuilder::new(topology, &radii, bounds, &options).map_err(encode)?)
     } else {
         None

@@ -194,6 +194,7 @@ fn heart_request(frames: u32) -> JobRequest {
             method: SketchMethod::Multiscale,
             fit: Some(SketchFit::Crown),
             keyframes: None,
+            animation_encoding: Default::default(),
         },
         outputs: Outputs::default(),
         callback_url: None,
@@ -275,4 +276,37 @@ fn a_missing_tree_is_reported_not_panicked() {
     )
     .unwrap_err();
     assert_eq!(err.code, ErrorCode::TreeNotFound);
+}
+
+#[test]
+fn the_animation_encoding_is_honoured() {
+    let JobRequest::Morph(mut morph) = morph_request(
+        4,
+        Outputs {
+            glb: false,
+            animated: true,
+            delta: false,
+        },
+    ) else {
+        unreachable!()
+    };
+    let trees = morph_trees();
+    let mut sizes = Vec::new();
+    for encoding in [
+        treemorph_api::jobs::AnimationEncoding::Float,
+        treemorph_api::jobs::AnimationEncoding::Meshopt,
+    ] {
+        morph.options.animation_encoding = encoding;
+        let mut sink = MemorySink::default();
+        run(&JobRequest::Morph(morph.clone()), &trees, &mut sink).unwrap();
+        let glb = &sink.files["animation.glb"];
+        let json_len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+        let json = std::str::from_utf8(&glb[20..20 + json_len]).unwrap();
+        assert_eq!(
+            json.contains("EXT_meshopt_compression"),
+            encoding == treemorph_api::jobs::AnimationEncoding::Meshopt
+        );
+        sizes.push(glb.len());
+    }
+    assert!(sizes[1] < sizes[0], "{sizes:?}");
 }

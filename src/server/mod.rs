@@ -259,6 +259,27 @@ async fn uniform_errors(request: Request, next: Next) -> Response {
     Response::from_parts(parts, Body::from(body))
 }
 
+/// Refuses compressed request bodies (`Content-Encoding` other than
+/// `identity`) before anything reads them: no route decodes them, so a
+/// gzip or zstd body would otherwise be parsed as garbage and answered
+/// with a misleading `invalid_json`; refusing also rules out
+/// decompression bombs by construction.
+async fn refuse_encoded_bodies(request: Request, next: Next) -> Response {
+    let encoded = request
+        .headers()
+        .get_all(header::CONTENT_ENCODING)
+        .iter()
+        .any(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"));
+    if encoded {
+        return ApiError::new(
+            ErrorCode::UnsupportedMediaType,
+            "compressed request bodies (Content-Encoding) are not accepted; send the body as it is",
+        )
+        .into_response();
+    }
+    next.run(request).await
+}
+
 async fn fallback() -> ApiError {
     ApiError::new(ErrorCode::NotFound, "no such route")
 }
@@ -303,6 +324,7 @@ pub fn router(state: AppState) -> Router {
     let cors = cors(state.settings());
     app.fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(middleware::from_fn(refuse_encoded_bodies))
         .layer(middleware::from_fn_with_state(state.clone(), track))
         .layer(middleware::from_fn(uniform_errors))
         .layer(cors)

@@ -132,7 +132,7 @@ pub fn yaml() -> &'static str {
     path = "/openapi.yaml",
     operation_id = "openapi",
     tag = "operations",
-    responses((status = 200, description = "The OpenAPI document", content_type = "application/yaml", body = String))
+    responses((status = 200, description = "The OpenAPI document", content_type = "application/yaml", body = super::trees::JsonDocument))
 )]
 pub async fn spec() -> impl IntoResponse {
     (

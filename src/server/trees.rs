@@ -83,6 +83,61 @@ impl utoipa::PartialSchema for JsonDocument {
 
 impl ToSchema for JsonDocument {}
 
+/// A tree document (`application/vnd.treemorph.tree+json`): the OpenAPI
+/// document names its required top level; `api/schemas/tree.schema.json`
+/// is the full schema, and the server checks far more than a schema can
+/// say (one root, no cycles, limits), answering `invalid_tree`.
+#[derive(Debug)]
+pub struct TreeDocument;
+
+impl utoipa::PartialSchema for TreeDocument {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{ArrayBuilder, Object, ObjectBuilder, Type};
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some(
+                "A tree in our JSON format; the full schema is api/schemas/tree.schema.json",
+            ))
+            .property(
+                "format",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .enum_values(Some(["treemorph.tree/1"])),
+            )
+            .property(
+                "nodes",
+                ArrayBuilder::new()
+                    .items(Object::with_type(Type::Object))
+                    .min_items(Some(1)),
+            )
+            .required("format")
+            .required("nodes")
+            .into()
+    }
+}
+
+impl ToSchema for TreeDocument {}
+
+/// A glTF 2.0 JSON document (`model/gltf+json`): an object with `asset`
+/// (the glTF schema is the Khronos one; the importer answers
+/// `invalid_gltf` or `unsupported_gltf` for the rest).
+#[derive(Debug)]
+pub struct GltfDocument;
+
+impl utoipa::PartialSchema for GltfDocument {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{Object, ObjectBuilder, Type};
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some("A glTF 2.0 document with embedded data: URIs"))
+            .property("asset", Object::with_type(Type::Object))
+            .required("asset")
+            .into()
+    }
+}
+
+impl ToSchema for GltfDocument {}
+
 /// Everything derived from an input tree, ready to store.
 struct Prepared {
     original: Vec<u8>,
@@ -177,8 +232,8 @@ async fn store(
         description = "The tree file",
         content(
             ([u8] = "model/gltf-binary"),
-            (JsonDocument = "model/gltf+json"),
-            (JsonDocument = "application/vnd.treemorph.tree+json"),
+            (GltfDocument = "model/gltf+json"),
+            (TreeDocument = "application/vnd.treemorph.tree+json"),
         )
     ),
     responses(
@@ -218,8 +273,28 @@ pub async fn post(
     let prepared = tokio::task::spawn_blocking(move || -> Result<Prepared, ApiError> {
         let bytes = std::fs::read(spooled.path()).map_err(ApiError::internal)?;
         drop(spooled);
-        let (tree, kind) = tree_from_bytes(&bytes, &Limits::default(), FsPath::new("upload"))
-            .map_err(|e| load_error(e, declared))?;
+        let limits = Limits::default();
+        let (tree, kind) = match (declared, crate::files::sniff(&bytes)) {
+            // JSON declared as glTF is read as glTF even when broken or
+            // without `asset` (which the sniffer would hand to the tree
+            // JSON parser): the client learns what is wrong with its glTF.
+            (TreeFileKind::Gltf, Some(TreeFileKind::TreeJson)) => {
+                let imported =
+                    treemorph_import::import(&bytes, &crate::files::import_options(&limits))
+                        .map_err(|source| {
+                            load_error(
+                                LoadError::Gltf {
+                                    path: FsPath::new("upload").to_owned(),
+                                    source,
+                                },
+                                declared,
+                            )
+                        })?;
+                (imported.tree, TreeFileKind::Gltf)
+            }
+            _ => tree_from_bytes(&bytes, &limits, FsPath::new("upload"))
+                .map_err(|e| load_error(e, declared))?,
+        };
         if kind != declared {
             return Err(ApiError::new(
                 invalid_code(declared),

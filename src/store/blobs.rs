@@ -4,8 +4,22 @@
 //!
 //! Puts are atomic: the local store writes a staging file and renames it
 //! into place (with fsync of the file and its directory, so a blob named
-//! by a committed row survives power loss); S3 puts are atomic by
-//! definition. A reader therefore never sees a partial blob.
+//! by a committed row survives power loss); on S3 every blob is one
+//! `PutObject`, which becomes visible whole or not at all. We never use
+//! multipart uploads (whose parts are invisible until the completing call,
+//! but which leave orphaned parts behind a crash and need a lifecycle rule
+//! to clean up): our largest outputs are tens of megabytes, far below the
+//! 5 GiB single-put limit. A reader therefore never sees a partial blob.
+//!
+//! # S3 settings
+//! `s3://bucket/prefix` with the usual environment: `AWS_ACCESS_KEY_ID`,
+//! `AWS_SECRET_ACCESS_KEY` (and `AWS_SESSION_TOKEN`), `AWS_REGION` or
+//! `AWS_DEFAULT_REGION` (default `us-east-1`), and for an S3-compatible
+//! server `AWS_ENDPOINT_URL` (e.g. `http://127.0.0.1:9000`). Requests are
+//! path-style (`endpoint/bucket/key`, what MinIO, moto and s3s expect) unless
+//! `AWS_VIRTUAL_HOSTED_STYLE_REQUEST=true`. Naming an `http://` endpoint
+//! allows plain HTTP (object_store refuses it unless told; naming the
+//! endpoint is consent enough) unless `AWS_ALLOW_HTTP` says otherwise.
 
 use std::ops::Range;
 use std::path::Path as FsPath;
@@ -14,6 +28,7 @@ use std::sync::Arc;
 use bytes::Bytes;
 use futures_util::StreamExt;
 use futures_util::stream::BoxStream;
+use object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
 use object_store::path::Path;
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
 
@@ -50,9 +65,7 @@ impl Blobs {
                 let bucket = parsed
                     .host_str()
                     .ok_or_else(|| anyhow::anyhow!("s3 URL {url:?} names no bucket"))?;
-                let s3 = object_store::aws::AmazonS3Builder::from_env()
-                    .with_bucket_name(bucket)
-                    .build()?;
+                let s3 = s3_builder(bucket, std::env::vars()).build()?;
                 let prefix = parsed.path().trim_matches('/');
                 if prefix.is_empty() {
                     Arc::new(s3)
@@ -151,8 +164,33 @@ impl Blobs {
     }
 }
 
+/// An S3 builder for `bucket` configured from the `AWS_*` variables among
+/// `env` (see the module docs).
+fn s3_builder(bucket: &str, env: impl IntoIterator<Item = (String, String)>) -> AmazonS3Builder {
+    let mut builder = AmazonS3Builder::new().with_bucket_name(bucket);
+    let mut http_decided = false;
+    for (key, value) in env {
+        if !key.starts_with("AWS_") {
+            continue;
+        }
+        if let Ok(config) = key.to_ascii_lowercase().parse::<AmazonS3ConfigKey>() {
+            http_decided |= key == "AWS_ALLOW_HTTP";
+            builder = builder.with_config(config, value);
+        }
+    }
+    let plain_http = builder
+        .get_config_value(&AmazonS3ConfigKey::Endpoint)
+        .is_some_and(|e| e.starts_with("http://"));
+    if plain_http && !http_decided {
+        builder = builder.with_allow_http(true);
+    }
+    builder
+}
+
 #[cfg(test)]
 mod tests {
+    use object_store::ClientConfigKey;
+
     use super::*;
 
     #[tokio::test]
@@ -179,6 +217,105 @@ mod tests {
         assert_eq!(blobs.get("jobs/a/t1/x").await.unwrap(), None);
         assert!(blobs.get("jobs/a/t2/y").await.unwrap().is_some());
         blobs.ping().await.unwrap();
+    }
+
+    #[test]
+    fn s3_settings_come_from_the_aws_environment() {
+        let env = |pairs: &[(&str, &str)]| {
+            pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect::<Vec<_>>()
+        };
+        let allow_http = AmazonS3ConfigKey::Client(ClientConfigKey::AllowHttp);
+        let local = s3_builder(
+            "b",
+            env(&[
+                ("AWS_ENDPOINT_URL", "http://127.0.0.1:9000"),
+                ("AWS_DEFAULT_REGION", "eu-west-3"),
+                ("AWS_ACCESS_KEY_ID", "id"),
+                ("HOME", "/root"),
+            ]),
+        );
+        assert_eq!(local.get_config_value(&allow_http).as_deref(), Some("true"));
+        assert_eq!(
+            local
+                .get_config_value(&AmazonS3ConfigKey::Region)
+                .as_deref(),
+            Some("eu-west-3")
+        );
+        assert_eq!(
+            local
+                .get_config_value(&AmazonS3ConfigKey::AccessKeyId)
+                .as_deref(),
+            Some("id")
+        );
+        assert_eq!(
+            local
+                .get_config_value(&AmazonS3ConfigKey::VirtualHostedStyleRequest)
+                .as_deref(),
+            Some("false"),
+            "path-style by default"
+        );
+        // AWS_REGION wins over AWS_DEFAULT_REGION in either order.
+        for pairs in [
+            [("AWS_REGION", "r1"), ("AWS_DEFAULT_REGION", "r2")],
+            [("AWS_DEFAULT_REGION", "r2"), ("AWS_REGION", "r1")],
+        ] {
+            let b = s3_builder("b", env(&pairs));
+            assert_eq!(
+                b.get_config_value(&AmazonS3ConfigKey::Region).as_deref(),
+                Some("r1")
+            );
+        }
+        let refused = s3_builder(
+            "b",
+            env(&[
+                ("AWS_ALLOW_HTTP", "false"),
+                ("AWS_ENDPOINT_URL", "http://127.0.0.1:9000"),
+            ]),
+        );
+        assert_eq!(
+            refused.get_config_value(&allow_http).as_deref(),
+            Some("false")
+        );
+        let https = s3_builder("b", env(&[("AWS_ENDPOINT_URL", "https://s3.example")]));
+        assert_eq!(
+            https.get_config_value(&allow_http).as_deref(),
+            Some("false")
+        );
+    }
+
+    /// Against a real S3-compatible server: `TREEMORPH_TEST_S3_URL`
+    /// (`s3://bucket`, the bucket must exist) with the `AWS_*` environment
+    /// (`scripts/ci/scaleout.sh` runs it against moto).
+    #[tokio::test]
+    #[ignore = "needs TREEMORPH_TEST_S3_URL and an S3 server"]
+    async fn s3_blobs_round_trip_and_delete_by_prefix() {
+        let url = std::env::var("TREEMORPH_TEST_S3_URL").expect("TREEMORPH_TEST_S3_URL");
+        let run = crate::store::new_id();
+        let blobs =
+            Blobs::open(&format!("{}/blobs-test-{run}", url.trim_end_matches('/'))).unwrap();
+        blobs.ping().await.unwrap();
+        let big = vec![7u8; 12 * 1024 * 1024];
+        blobs.put("jobs/a/t1/big", big.clone()).await.unwrap();
+        blobs
+            .put("jobs/a/t2/y", Bytes::from_static(b"world"))
+            .await
+            .unwrap();
+        assert_eq!(blobs.get("jobs/a/t1/big").await.unwrap().unwrap(), big);
+        assert_eq!(blobs.size("jobs/a/t2/y").await.unwrap(), Some(5));
+        assert_eq!(blobs.get("missing").await.unwrap(), None);
+        assert_eq!(blobs.size("missing").await.unwrap(), None);
+        let mut kids = blobs.children("jobs/a").await.unwrap();
+        kids.sort();
+        assert_eq!(kids, ["t1", "t2"]);
+        let mut s = blobs.stream("jobs/a/t2/y", Some(1..4)).await.unwrap();
+        assert_eq!(s.next().await.unwrap().unwrap(), "orl");
+        blobs.delete_prefix("jobs/a/t1").await.unwrap();
+        assert_eq!(blobs.get("jobs/a/t1/big").await.unwrap(), None);
+        blobs.delete_prefix("jobs").await.unwrap();
+        assert!(blobs.children("jobs").await.unwrap().is_empty());
     }
 
     #[test]

@@ -100,20 +100,25 @@ impl Db {
     }
 
     /// Applies the migrations that have not been applied yet, each in its
-    /// own transaction. Safe to run from several processes at once: on
-    /// PostgreSQL an advisory lock serialises them; on SQLite the first
+    /// own transaction. Safe to run from several processes at once (a
+    /// fleet starting together against a fresh database): on PostgreSQL an
+    /// advisory lock, taken before anything else, serialises them — even
+    /// `CREATE TABLE IF NOT EXISTS` is not safe unserialised there (two
+    /// creators race on the catalogue's unique index); on SQLite the first
     /// write takes the database lock.
     pub async fn migrate(&self) -> Result<(), sqlx::Error> {
         let migrations = match self.backend {
             Backend::Sqlite => SQLITE_MIGRATIONS,
             Backend::Postgres => POSTGRES_MIGRATIONS,
         };
+        const CREATE: &str = "CREATE TABLE IF NOT EXISTS schema_migrations \
+             (version BIGINT PRIMARY KEY, applied_at BIGINT NOT NULL)";
         let mut conn = self.writer.acquire().await?;
-        sqlx::query(
-            "CREATE TABLE IF NOT EXISTS schema_migrations (version BIGINT PRIMARY KEY, applied_at BIGINT NOT NULL)",
-        )
-        .execute(&mut *conn)
-        .await?;
+        if self.backend == Backend::Sqlite {
+            // Outside the transaction below, whose first statement must be
+            // a write (a read first would need a lock upgrade later).
+            sqlx::query(CREATE).execute(&mut *conn).await?;
+        }
         for &(version, sql) in migrations {
             let mut tx = sqlx::Connection::begin(&mut *conn).await?;
             match self.backend {
@@ -121,6 +126,7 @@ impl Db {
                     sqlx::query("SELECT pg_advisory_xact_lock(7311)")
                         .execute(&mut *tx)
                         .await?;
+                    sqlx::query(CREATE).execute(&mut *tx).await?;
                 }
                 Backend::Sqlite => {
                     // Take the write lock now, before reading the version.
@@ -194,6 +200,43 @@ mod tests {
         assert!(s[1].starts_with("CREATE INDEX"));
         for (_, sql) in SQLITE_MIGRATIONS.iter().chain(POSTGRES_MIGRATIONS) {
             assert!(split_statements(sql).len() >= 5);
+        }
+    }
+
+    /// Several processes starting at once against a fresh PostgreSQL
+    /// database (`TREEMORPH_TEST_POSTGRES_URL`, the server's URL without a
+    /// database name): every one migrates, none fails, the schema is applied
+    /// once.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    #[ignore = "needs TREEMORPH_TEST_POSTGRES_URL"]
+    async fn concurrent_migrations_on_postgres_all_succeed() {
+        let admin =
+            std::env::var("TREEMORPH_TEST_POSTGRES_URL").expect("TREEMORPH_TEST_POSTGRES_URL");
+        let admin = admin.trim_end_matches('/').to_owned();
+        for round in 0..5 {
+            let name = format!("treemorph_migrate_{}", crate::store::new_id());
+            let db = Db::connect(&format!("{admin}/postgres")).await.unwrap();
+            sqlx::query(sqlx::AssertSqlSafe(format!("CREATE DATABASE {name}")))
+                .execute(&db.pool)
+                .await
+                .unwrap();
+            let url = format!("{admin}/{name}");
+            let mut tasks = tokio::task::JoinSet::new();
+            for _ in 0..8 {
+                let url = url.clone();
+                tasks.spawn(async move { Db::connect(&url).await?.migrate().await });
+            }
+            while let Some(r) = tasks.join_next().await {
+                r.unwrap().unwrap_or_else(|e| {
+                    panic!("round {round}: a concurrent migration failed: {e}")
+                });
+            }
+            let fresh = Db::connect(&url).await.unwrap();
+            let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM schema_migrations")
+                .fetch_one(&fresh.pool)
+                .await
+                .unwrap();
+            assert_eq!(n as usize, POSTGRES_MIGRATIONS.len());
         }
     }
 

@@ -4,6 +4,8 @@
 
 mod common;
 mod e2e;
+mod fleet;
+mod hostile;
 mod jobs;
 mod openapi;
 mod process;

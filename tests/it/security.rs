@@ -261,3 +261,218 @@ async fn cors_answers_configured_origins_only() {
     assert!(r.headers().get("access-control-allow-origin").is_none());
     app.stop().await;
 }
+
+/// How a documented route without an id in its path keeps tenants apart.
+#[derive(Clone, Copy, Debug)]
+enum Tenancy {
+    /// Lists only the caller's resources.
+    List,
+    /// Creates a resource owned by the caller (checked: the other key
+    /// cannot see it).
+    Creates,
+    /// Names trees in its body: another key's trees are `tree_not_found`.
+    NamesTrees,
+    /// Operations endpoints: no tenant data.
+    Public,
+}
+
+/// Every route without a path id, with how it is checked. A route added
+/// to the OpenAPI document without an entry here fails the test below.
+const NO_ID_ROUTES: &[(&str, &str, Tenancy)] = &[
+    ("get", "/v1/trees", Tenancy::List),
+    ("post", "/v1/trees", Tenancy::Creates),
+    ("post", "/v1/trees/generate", Tenancy::Creates),
+    ("get", "/v1/jobs", Tenancy::List),
+    ("post", "/v1/jobs", Tenancy::NamesTrees),
+    ("get", "/healthz", Tenancy::Public),
+    ("get", "/readyz", Tenancy::Public),
+    ("get", "/metrics", Tenancy::Public),
+    ("get", "/openapi.yaml", Tenancy::Public),
+];
+
+/// Every operation of the OpenAPI document (generated from the code; the
+/// `openapi` test keeps the committed file equal to it), as (method, path).
+fn documented_operations() -> Vec<(String, String)> {
+    let doc = serde_json::to_value(treemorph::server::openapi::document()).unwrap();
+    let mut ops = Vec::new();
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        for method in ["get", "put", "post", "delete", "patch", "head", "options"] {
+            if item.get(method).is_some() {
+                ops.push((method.to_owned(), path.clone()));
+            }
+        }
+    }
+    ops.sort();
+    ops
+}
+
+/// Tenancy on **every** documented route: another key's ids answer 404
+/// exactly like ids that never existed, lists and body references see
+/// only the caller's resources, and every `/v1` route refuses a request
+/// without a key. The routes come from the OpenAPI document, so a new
+/// route cannot be forgotten.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_documented_route_hides_other_keys_resources() {
+    use reqwest::Method;
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.api_keys = vec!["alice-key".into(), "bob-key".into()];
+    })
+    .await;
+    let (alice, bob) = (Some("alice-key"), Some("bob-key"));
+    let spec = json!({"preset": "maple", "seed": 1, "size": 100});
+    let mut trees = Vec::new();
+    for _ in 0..2 {
+        let (s, t) = send(
+            &app,
+            Method::POST,
+            "/v1/trees/generate",
+            alice,
+            Some(spec.clone()),
+        )
+        .await;
+        assert_eq!(s, 201, "{t}");
+        trees.push(t["id"].as_str().unwrap().to_owned());
+    }
+    let morph = json!({"kind": "morph", "source": trees[0], "target": trees[1], "frames": 3});
+    let (s, job) = send(&app, Method::POST, "/v1/jobs", alice, Some(morph.clone())).await;
+    assert_eq!(s, 202, "{job}");
+    let job = job["id"].as_str().unwrap().to_owned();
+    let mut done = false;
+    for _ in 0..500 {
+        let (_, j) = send(&app, Method::GET, &format!("/v1/jobs/{job}"), alice, None).await;
+        if j["status"] == "succeeded" {
+            done = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(done, "alice's job did not finish");
+
+    let ops = documented_operations();
+    assert!(ops.len() >= 21, "{ops:?}");
+    let mut checked = 0;
+    for (method, path) in &ops {
+        let m = Method::from_bytes(method.to_uppercase().as_bytes()).unwrap();
+        if path.contains('{') {
+            let concrete = if path.starts_with("/v1/trees/{id}") {
+                path.replace("{id}", &trees[0])
+            } else if path.starts_with("/v1/jobs/{id}") {
+                path.replace("{id}", &job).replace("{frame}", "0.glb")
+            } else {
+                panic!(
+                    "{method} {path}: a path id of an unknown resource: teach this test its ids"
+                );
+            };
+            assert!(
+                !concrete.contains('{'),
+                "{method} {path}: unknown path parameter"
+            );
+            let body = (m == Method::POST).then(|| json!({}));
+            // Bob, with Alice's ids: exactly a missing id.
+            let (s, b) = send(&app, m.clone(), &concrete, bob, body.clone()).await;
+            assert_eq!(
+                (s, error_code(&b)),
+                (404, "not_found"),
+                "{method} {concrete} as bob"
+            );
+            // Alice (reads only: deletes would spend the fixtures) finds it.
+            if m == Method::GET {
+                let r = app
+                    .client
+                    .get(app.url(&concrete))
+                    .bearer_auth("alice-key")
+                    .send()
+                    .await
+                    .unwrap();
+                assert_eq!(r.status(), 200, "{method} {concrete} as alice");
+            }
+        } else {
+            let Some(&(_, _, kind)) = NO_ID_ROUTES
+                .iter()
+                .find(|(m2, p, _)| m2 == method && p == path)
+            else {
+                panic!("{method} {path} is not classified: add it to NO_ID_ROUTES");
+            };
+            match kind {
+                Tenancy::List => {
+                    let (s, page) = send(&app, m.clone(), path, bob, None).await;
+                    assert_eq!(s, 200, "{path}");
+                    assert_eq!(page["items"], json!([]), "{method} {path} as bob");
+                    let (_, page) = send(&app, m.clone(), path, alice, None).await;
+                    assert!(!page["items"].as_array().unwrap().is_empty(), "{path}");
+                }
+                Tenancy::Creates => {
+                    let r = if path == "/v1/trees" {
+                        let bytes = app
+                            .client
+                            .get(app.url(&format!("/v1/trees/{}/tree.json", trees[0])))
+                            .bearer_auth("alice-key")
+                            .send()
+                            .await
+                            .unwrap()
+                            .bytes()
+                            .await
+                            .unwrap();
+                        app.client
+                            .post(app.url(path))
+                            .bearer_auth("bob-key")
+                            .header("content-type", "application/vnd.treemorph.tree+json")
+                            .body(bytes)
+                            .send()
+                            .await
+                            .unwrap()
+                    } else {
+                        app.client
+                            .post(app.url(path))
+                            .bearer_auth("bob-key")
+                            .json(&spec)
+                            .send()
+                            .await
+                            .unwrap()
+                    };
+                    assert_eq!(r.status(), 201, "{method} {path} as bob");
+                    let created: Value = r.json().await.unwrap();
+                    let id = created["id"].as_str().unwrap();
+                    let (s, b) =
+                        send(&app, Method::GET, &format!("/v1/trees/{id}"), alice, None).await;
+                    assert_eq!(
+                        (s, error_code(&b)),
+                        (404, "not_found"),
+                        "bob's tree as alice"
+                    );
+                }
+                Tenancy::NamesTrees => {
+                    let (s, b) = send(&app, m.clone(), path, bob, Some(morph.clone())).await;
+                    assert_eq!((s, error_code(&b)), (404, "tree_not_found"), "{path}");
+                }
+                Tenancy::Public => {
+                    let r = app
+                        .client
+                        .request(m.clone(), app.url(path))
+                        .send()
+                        .await
+                        .unwrap();
+                    assert_eq!(r.status(), 200, "{path} needs no key");
+                }
+            }
+        }
+        // Every /v1 route needs a key.
+        if path.starts_with("/v1/") {
+            let concrete = path.replace("{id}", &trees[0]).replace("{frame}", "0.glb");
+            let (s, b) = send(&app, m.clone(), &concrete, None, None).await;
+            assert_eq!(
+                (s, error_code(&b)),
+                (401, "unauthorized"),
+                "{method} {path}"
+            );
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, ops.len());
+    // Nothing of Alice's was touched by Bob's attempts.
+    for path in [format!("/v1/trees/{}", trees[0]), format!("/v1/jobs/{job}")] {
+        let (s, _) = send(&app, Method::GET, &path, alice, None).await;
+        assert_eq!(s, 200, "{path}");
+    }
+    app.stop().await;
+}

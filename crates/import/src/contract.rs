@@ -37,7 +37,9 @@
 //! is multiplied by `S_L = 3` per iteration; `W_H,i = sqrt(A_i⁰ / A_iᵗ)`
 //! from the one-ring areas (capped at 10⁴; pinned vertices 10⁴).
 //! Iterations stop early when the total one-ring area falls below 10⁻⁴ of
-//! the start.
+//! the start, or when the system is numerically singular (hostile
+//! geometry, found by fuzzing): the positions of the last iteration that
+//! factorised are kept.
 //!
 //! # 3. Surgery
 //! Instead of the paper's edge-collapse surgery we slice: geodesic distance
@@ -386,8 +388,14 @@ pub(crate) fn contract(proxy: &Proxy, iterations: u32) -> Result<Vec<Vec3>, Impo
             rhs[(k, 2)] = w2 * p.z;
         }
         let matrix = SparseColMatRef::new(symbolic_ref, &values);
-        let llt = Llt::try_new_with_symbolic(symbolic.clone(), matrix, Side::Lower)
-            .map_err(|e| ImportError::Internal(format!("Cholesky factorisation failed: {e}")))?;
+        // The matrix is positive definite in exact arithmetic, but hostile
+        // geometry (coincident or wildly scaled vertices) can make it
+        // numerically singular: contraction then stops at the last
+        // iteration that factorised (the original positions at worst), and
+        // the surgery slices what it has, rather than failing the import.
+        let Ok(llt) = Llt::try_new_with_symbolic(symbolic.clone(), matrix, Side::Lower) else {
+            break;
+        };
         llt.solve_in_place(rhs.as_mut());
         let mut next = Vec::with_capacity(n);
         for k in 0..n {

@@ -268,13 +268,18 @@ fn merge(comps: &[Component]) -> Vec<usize> {
     let mut uf = UnionFind::new(comps.len());
     for (i, c) in comps.iter().enumerate() {
         let k = key(c.centre);
-        // Components larger than the median look further (bounded: a
+        // Saturating: hostile coordinates put keys at i32::MAX (found by
+        // fuzzing). Components larger than the median look further (bounded: a
         // giant component could otherwise scan the whole grid).
         let reach = ((MERGE_DISTANCE * c.size / cell).ceil() as i32).clamp(1, 3);
         for dx in -reach..=reach {
             for dy in -reach..=reach {
                 for dz in -reach..=reach {
-                    let Some(list) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) else {
+                    let Some(list) = grid.get(&[
+                        k[0].saturating_add(dx),
+                        k[1].saturating_add(dy),
+                        k[2].saturating_add(dz),
+                    ]) else {
                         continue;
                     };
                     for &j in list {

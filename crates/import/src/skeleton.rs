@@ -264,9 +264,35 @@ pub(crate) fn assemble(
                     }
                 }
             }
+            if best.is_none() {
+                // The grid search found nothing near: the leftover pieces
+                // are far away (hostile coordinates) or closed loops with
+                // no end (found by fuzzing). Try every vertex of them
+                // against every attached segment; only hostile files get
+                // here, so the quadratic cost is bounded by the size
+                // limits and paid by them alone.
+                for v in (0..n).filter(|&v| !attached[piece_of[v] as usize]) {
+                    for &seg in &attached_segments {
+                        let (a, b) = segments[seg as usize];
+                        let (s, dist) =
+                            closest_on_segment(pos[v], pos[a as usize], pos[b as usize]);
+                        if dist.is_finite() && best.is_none_or(|x| dist < x.dist) {
+                            best = Some(Candidate {
+                                dist,
+                                piece: piece_of[v],
+                                end: v as u32,
+                                target_piece: seg_piece[seg as usize],
+                                segment: seg,
+                                s,
+                            });
+                        }
+                    }
+                }
+            }
             let Some(c) = best else {
-                return Err(ImportError::Internal(
-                    "a skeleton piece has no end to attach".into(),
+                return Err(ImportError::InvalidTree(
+                    "the branch mesh falls apart into pieces that cannot be joined into one skeleton"
+                        .into(),
                 ));
             };
             attached[c.piece as usize] = true;

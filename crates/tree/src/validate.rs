@@ -21,6 +21,11 @@ pub struct Limits {
     pub max_leaf_materials: usize,
     /// Longest texture side in pixels (default 4,096).
     pub max_texture_side: u32,
+    /// Most pixels of all textures together, bark and leaves (default
+    /// 4 × 4,096², i.e. 256 MiB decoded). Encoders decode every texture
+    /// of a tree at once, so without a total a small upload of
+    /// well-compressed large images could hold gigabytes.
+    pub max_texture_pixels: u64,
     /// Longest tree name in bytes (default 256).
     pub max_name_len: usize,
 }
@@ -32,6 +37,7 @@ impl Default for Limits {
             max_leaves: 500_000,
             max_leaf_materials: 64,
             max_texture_side: DEFAULT_MAX_TEXTURE_SIDE,
+            max_texture_pixels: 4 * 4096 * 4096,
             max_name_len: 256,
         }
     }
@@ -348,13 +354,14 @@ pub(crate) fn build(parts: TreeParts, limits: &Limits) -> Result<Tree, InvalidTr
     }
 
     check_color(materials.bark.color, Field::BarkColor, 0)?;
+    let mut pixels = 0u64;
     if let Some(t) = &materials.bark.texture {
-        check_texture(t, "bark", limits)?;
+        check_texture(t, "bark", limits, &mut pixels)?;
     }
     for (i, m) in materials.leaves.iter().enumerate() {
         check_color(m.color, Field::LeafColor, i)?;
         if let Some(t) = &m.texture {
-            check_texture(t, &format!("leaves[{i}]"), limits)?;
+            check_texture(t, &format!("leaves[{i}]"), limits, &mut pixels)?;
         }
     }
 
@@ -401,10 +408,12 @@ fn check_color(color: [f32; 4], field: Field, index: usize) -> Result<(), Invali
     Ok(())
 }
 
+/// Checks one texture's size and adds its pixels to the running `total`.
 fn check_texture(
     texture: &crate::Texture,
     material: &str,
     limits: &Limits,
+    total: &mut u64,
 ) -> Result<(), InvalidTree> {
     let side = texture.width().max(texture.height());
     if side > limits.max_texture_side {
@@ -415,6 +424,16 @@ fn check_texture(
                 texture.width(),
                 texture.height(),
                 limits.max_texture_side
+            ),
+        });
+    }
+    *total += u64::from(texture.width()) * u64::from(texture.height());
+    if *total > limits.max_texture_pixels {
+        return Err(InvalidTree::InvalidTexture {
+            material: material.to_owned(),
+            reason: format!(
+                "the textures up to this one have {total} pixels; at most {} are allowed in all",
+                limits.max_texture_pixels
             ),
         });
     }

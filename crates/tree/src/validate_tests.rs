@@ -300,6 +300,34 @@ fn refuses_textures_over_the_side_limit() {
     ));
 }
 
+/// Regression (hostile uploads): 64 leaf materials of 4096² each passed
+/// the per-side limit, and a job decoding them all held 4 GiB of pixels
+/// for a 5 MiB upload of all-zero PNGs.
+#[test]
+fn refuses_textures_over_the_total_pixel_budget() {
+    let image = crate::RgbaImage::new(8, 8, vec![255; 8 * 8 * 4]).unwrap();
+    let texture = Texture::from_rgba(&image);
+    let material = |name: &str| crate::LeafMaterial {
+        name: name.into(),
+        color: [1.0; 4],
+        texture: Some(texture.clone()),
+    };
+    let mut p = parts();
+    p.materials.bark.texture = Some(texture.clone());
+    p.materials.leaves = vec![material("a"), material("b")];
+    let limits = Limits {
+        max_texture_pixels: 3 * 64,
+        ..Limits::default()
+    };
+    assert!(Tree::new(p.clone(), &limits).is_ok());
+    p.materials.leaves.push(material("c"));
+    assert!(matches!(
+        Tree::new(p, &limits),
+        Err(InvalidTree::InvalidTexture { material, .. }) if material == "leaves[2]"
+    ));
+    assert_eq!(Limits::default().max_texture_pixels, 4 * 4096 * 4096);
+}
+
 #[test]
 fn refuses_ground_truth_that_does_not_fit() {
     let gt = |orders: Vec<u32>, chains: Vec<u32>| {

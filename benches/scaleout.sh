@@ -26,8 +26,13 @@ FRAMES=${FRAMES:-24}
 SIZE=${SIZE:-1000}
 OUTPUTS=${OUTPUTS:-'{"glb": false}'}
 
-cargo build --release --locked -p treemorph --bin treemorph >&2
-BIN=$PWD/target/release/treemorph
+# TREEMORPH_BIN: a binary to use instead of building the release one.
+if [ -n "${TREEMORPH_BIN:-}" ]; then
+  BIN=$TREEMORPH_BIN
+else
+  cargo build --release --locked -p treemorph --bin treemorph >&2
+  BIN=$PWD/target/release/treemorph
+fi
 work=$(mktemp -d)
 pids=()
 stop_fleet() {

@@ -5,7 +5,7 @@
 # and the test runner (jobs finish in milliseconds, so job outputs exist
 # for the stateful phase). Fails on any failure or error, any 5xx included.
 #
-#   scripts/ci/schemathesis.sh [SECONDS]      (default 150: the time budget)
+#   scripts/ci/schemathesis.sh [SECONDS]      (default 100: the time budget)
 #
 # Needs (installs nothing itself; scripts/setup installs it): schemathesis
 # in target/ci-venv (scripts/ci/requirements.txt). Settings:
@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
-seconds=${1:-150}
+seconds=${1:-100}
 st=${SCHEMATHESIS:-target/ci-venv/bin/schemathesis}
 [ -x "$st" ] || st=$(command -v schemathesis) || { echo "schemathesis is missing: scripts/setup installs it" >&2; exit 1; }
 out=${TREEMORPH_TEST_OUT:-target/test-artifacts}/schemathesis

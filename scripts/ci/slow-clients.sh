@@ -15,7 +15,7 @@
 #      Content-Length 1 MB, a few bytes every 2 s) and `slowhttptest -H`
 #      (slowloris: 1500 connections opened at 60/s, one more header line
 #      every 2 s; about 550 are open at once once under way), both at nice
-#      19 (slowhttptest -B spins on a whole core, which a real attacker
+#      19 (slowhttptest -B busy-polls a whole core, which a real attacker
 #      spends on its own machine); while both are open the same wrk series
 #      runs again; once every slow connection is gone, a third series gives
 #      the baseline after the attack;
@@ -51,8 +51,9 @@
 #
 # Environment: SLOW_CLIENTS_HEADER_TIMEOUT (seconds, default 10, the
 # server's default), SLOW_CLIENTS_REQUEST_TIMEOUT (default 60, the
-# server's default), TREEMORPH_BIN (use this binary instead of building;
-# for iterating on the script).
+# server's default), SLOW_CLIENTS_PACE_MS (wrk think time, default 10),
+# TREEMORPH_BIN (use this binary instead of building; for iterating on the
+# script).
 # Needs (installs nothing itself; scripts/setup installs them):
 #   Debian: slowhttptest wrk iproute2 (ss) python3
 # Budget: about 90 s on 2 cores once the binary is built (the slow bodies

@@ -2,13 +2,16 @@
 //!
 //! Exit codes are part of the interface scripts rely on:
 //! `0` success, `1` an operation failed, `2` the command line was wrong,
-//! `3` an input file is invalid or unreadable.
+//! `3` an input file is invalid or unreadable. `treemorph client` adds
+//! `4` not found, `5` the server is unreachable, `6` unauthorized and `7`
+//! busy (rate limited or queue full): see its module.
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
 mod animate;
+mod client;
 mod generate;
 mod import;
 mod inspect;
@@ -56,6 +59,9 @@ enum Command {
     Bench(crate::bench::Args),
     /// Run the HTTP service (API and workers; see `treemorph serve --help`).
     Serve(Box<crate::config::Settings>),
+    /// Talk to a running service: upload, generate, morph, sketch, watch,
+    /// download (see `treemorph client --help`).
+    Client(client::Args),
 }
 
 /// A command's failure: what to print and which exit code to use.
@@ -97,6 +103,7 @@ pub fn main() -> ExitCode {
         Command::Sketch(args) => animate::sketch(&args),
         Command::Bench(args) => crate::bench::run(&args),
         Command::Serve(settings) => serve::run(*settings),
+        Command::Client(args) => client::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 //! process, with a test runner injected through the app state), and for the
 //! crash and shutdown tests the real binary.
 
+mod client;
 mod common;
 mod e2e;
 mod fleet;

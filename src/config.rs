@@ -114,6 +114,12 @@ pub struct Settings {
     /// protection).
     #[arg(long, env = "TREEMORPH_HEADER_READ_TIMEOUT", default_value_t = 10)]
     pub header_read_timeout: u64,
+    /// Least average rate, in bytes per second, at which a request body
+    /// must arrive once the header timeout has passed (and no gap in it
+    /// may last longer than the header timeout): slow-body protection.
+    /// 0 turns the rate check off.
+    #[arg(long, env = "TREEMORPH_MIN_BODY_RATE", default_value_t = 1024)]
+    pub min_body_rate: u64,
     /// Largest tree upload in bytes.
     #[arg(long, env = "TREEMORPH_MAX_UPLOAD_BYTES", default_value_t = 64 * 1024 * 1024)]
     pub max_upload_bytes: u64,

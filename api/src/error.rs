@@ -78,11 +78,15 @@ pub enum ErrorCode {
     Unavailable,
     /// 503: the request took longer than the configured timeout.
     Timeout,
+    /// 408: the request body arrived too slowly (nothing for the header
+    /// timeout, or under the minimum rate once that much time has
+    /// passed): slow-body protection.
+    BodyTooSlow,
 }
 
 impl ErrorCode {
     /// Every code, in table order.
-    pub const ALL: [ErrorCode; 27] = [
+    pub const ALL: [ErrorCode; 28] = [
         ErrorCode::InvalidJson,
         ErrorCode::InvalidRequest,
         ErrorCode::Unauthorized,
@@ -110,6 +114,7 @@ impl ErrorCode {
         ErrorCode::Internal,
         ErrorCode::Unavailable,
         ErrorCode::Timeout,
+        ErrorCode::BodyTooSlow,
     ];
 
     /// The HTTP status this code is returned with.
@@ -119,6 +124,7 @@ impl ErrorCode {
             ErrorCode::Unauthorized => 401,
             ErrorCode::NotFound | ErrorCode::TreeNotFound => 404,
             ErrorCode::MethodNotAllowed => 405,
+            ErrorCode::BodyTooSlow => 408,
             ErrorCode::TreeInUse | ErrorCode::JobFinished | ErrorCode::NotReady => 409,
             ErrorCode::PayloadTooLarge | ErrorCode::TooLarge => 413,
             ErrorCode::UnsupportedMediaType | ErrorCode::UnsupportedGltf => 415,
@@ -169,6 +175,7 @@ impl ErrorCode {
             ErrorCode::Internal => "internal",
             ErrorCode::Unavailable => "unavailable",
             ErrorCode::Timeout => "timeout",
+            ErrorCode::BodyTooSlow => "body_too_slow",
         }
     }
 

@@ -11,9 +11,10 @@
 #      clients, not how the CPU is shared), 5 runs of 2 s; the phase's p99
 #      is the median of the runs' p99s (parsed from wrk's "99%" line), so
 #      one burst of unrelated load on a shared runner does not decide it;
-#   2. attack: `slowhttptest -B` (300 slow-body POST /v1/trees uploads,
-#      Content-Length 1 MB, a few bytes every 2 s) and `slowhttptest -H`
-#      (slowloris: 1500 connections opened at 60/s, one more header line
+#   2. attack: `slowhttptest -B` (slow-body POST /v1/trees uploads: 1000
+#      opened at 40/s, Content-Length 1 MB, a few bytes every 2 s; about
+#      250-400 are open at once once under way) and `slowhttptest -H`
+#      (slowloris: 1200 connections opened at 60/s, one more header line
 #      every 2 s; about 550 are open at once once under way), both at nice
 #      19 (slowhttptest -B busy-polls a whole core, which a real attacker
 #      spends on its own machine); while both are open the same wrk series
@@ -31,12 +32,13 @@
 #          Slowloris connections (headers never finish although data keeps
 #          coming, so only a total header deadline ends them) must live at
 #          most header-read-timeout + 2 s; slow-body connections (complete
-#          headers, body trickling in) at most request-timeout + 2 s (the
-#          server has no separate body deadline: the request timeout bounds
-#          an upload). This is more robust than slowhttptest's report, which
+#          headers, body trickling in) at most header-read-timeout + 2 s
+#          too (the server's minimum body rate, `--min-body-rate`, cuts a
+#          body off with 408 body_too_slow once the header timeout has
+#          passed). This is more robust than slowhttptest's report, which
 #          notices a close only at its next send (its CSVs are kept in the
-#          logs). The attack must also have been real: at least 300
-#          slowloris and 250 slow-body connections open throughout the wrk
+#          logs). The attack must also have been real: at least 250
+#          slowloris and 150 slow-body connections open throughout the wrk
 #          series under attack.
 #      (b) legitimate p99 under attack <= max(2 x B, B + 5 ms), B the larger
 #          of the baselines before and after (brackets background load that
@@ -56,8 +58,7 @@
 # script).
 # Needs (installs nothing itself; scripts/setup installs them):
 #   Debian: slowhttptest wrk iproute2 (ss) python3
-# Budget: about 90 s on 2 cores once the binary is built (the slow bodies
-# hold their connections for the 60 s request timeout).
+# Budget: about 90 s on 2 cores once the binary is built.
 # Logs: $TREEMORPH_TEST_OUT/slow-clients (default
 # target/test-artifacts/slow-clients).
 set -euo pipefail

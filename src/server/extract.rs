@@ -50,7 +50,9 @@ pub async fn json_body<T: DeserializeOwned, S: Send + Sync>(
         ));
     }
     let bytes = bytes::Bytes::from_request(req, state).await.map_err(|e| {
-        if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
+        if let Some(slow) = super::slow_body::is_too_slow(&e) {
+            ApiError::new(ErrorCode::BodyTooSlow, slow.to_string())
+        } else if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
             ApiError::new(ErrorCode::PayloadTooLarge, "the request body is too large")
         } else {
             ApiError::new(ErrorCode::InvalidJson, format!("cannot read the body: {e}"))

@@ -16,9 +16,13 @@
 //!   `cancel_requested: true` and stops within one frame (the response is
 //!   the job with status `running`); cancelling a cancelled job again is a
 //!   no-op `200`; a succeeded or failed job answers 409 `job_finished`.
-//! - Outputs of a job that has not succeeded (yet) answer 409 `not_ready`
-//!   while it is queued or running and 404 once it failed or was cancelled;
-//!   a frame is available as soon as it is published (`frames_ready`).
+//! - Whole-sequence outputs (`animation.glb`, `stream.tmd`,
+//!   `metrics.json`) of a job that has not succeeded (yet) answer 409
+//!   `not_ready` while it is queued or running and 404 once it failed or
+//!   was cancelled. A frame is available as soon as it is published
+//!   (`frames_ready`) and stays available when the job later fails or is
+//!   cancelled: the frames its last attempt published are a usable partial
+//!   result; frames never published answer 409 or 404 as above.
 
 use axum::Json;
 use axum::extract::{Path, Request, State};

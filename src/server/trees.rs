@@ -369,8 +369,10 @@ async fn spool(
     let mut stream = body.into_data_stream();
     let mut total = 0u64;
     while let Some(chunk) = stream.next().await {
-        let chunk =
-            chunk.map_err(|e| ApiError::invalid(format!("reading the body failed: {e}")))?;
+        let chunk = chunk.map_err(|e| match super::slow_body::is_too_slow(&e) {
+            Some(slow) => ApiError::new(ErrorCode::BodyTooSlow, slow.to_string()),
+            None => ApiError::invalid(format!("reading the body failed: {e}")),
+        })?;
         total += chunk.len() as u64;
         if total > limit {
             return Err(too_large());

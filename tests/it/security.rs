@@ -234,6 +234,52 @@ async fn slow_clients_are_cut_off_by_the_header_read_timeout() {
     app.stop().await;
 }
 
+/// Slow-body protection: a body dribbled under the minimum rate (or
+/// stalled) is refused with 408 `body_too_slow` once the header timeout
+/// has passed, on an upload route and on a JSON route.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_bodies_are_cut_off_by_the_minimum_rate() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.header_read_timeout = 1;
+        s.min_body_rate = 100;
+    })
+    .await;
+    let addr = app.base.trim_start_matches("http://").to_owned();
+    for (path, media) in [
+        ("/v1/trees", "application/vnd.treemorph.tree+json"),
+        ("/v1/jobs", "application/json"),
+    ] {
+        let mut stream = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        stream
+            .write_all(
+                format!(
+                    "POST {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {media}\r\nContent-Length: 100000\r\n\r\n{{"
+                )
+                .as_bytes(),
+            )
+            .await
+            .unwrap();
+        // A byte every 300 ms: never idle for the 1 s header timeout, but
+        // about 3 bytes/s against a minimum of 100.
+        let dribble = async {
+            loop {
+                tokio::time::sleep(Duration::from_millis(300)).await;
+                if stream.write_all(b" ").await.is_err() {
+                    break;
+                }
+            }
+        };
+        let _ = tokio::time::timeout(Duration::from_secs(10), dribble).await;
+        let mut buf = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(5), stream.read_to_end(&mut buf)).await;
+        let text = String::from_utf8_lossy(&buf);
+        assert!(text.starts_with("HTTP/1.1 408"), "{path}: {text}");
+        assert!(text.contains("body_too_slow"), "{path}: {text}");
+    }
+    app.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cors_answers_configured_origins_only() {
     let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {

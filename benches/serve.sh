@@ -7,13 +7,21 @@
 #   RUNNER: `test` (default: the test-only synthetic runner, 50 ms/frame,
 #   so the figures measure the service, not the geometry) or `real` (the
 #   production runner: the time to first frame then measures the pipeline).
+# Environment: SIZE, the two trees' branch count (default 2000; 5400 gives
+# the issue's 5,000-chain morph), TREEMORPH_BIN (a binary to use instead of
+# building the release one).
 # Needs wrk (apt-get install wrk) and curl. Talks to 127.0.0.1 only.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNNER=${1:-test}
 DURATION=${DURATION:-10s}
-cargo build --release -p treemorph --bin treemorph >&2
-BIN=target/release/treemorph
+SIZE=${SIZE:-2000}
+if [ -n "${TREEMORPH_BIN:-}" ]; then
+  BIN=$TREEMORPH_BIN
+else
+  cargo build --release -p treemorph --bin treemorph >&2
+  BIN=target/release/treemorph
+fi
 DATA=$(mktemp -d)
 OUT=$(mktemp)
 trap 'kill $PID 2>/dev/null || true; wait $PID 2>/dev/null || true; rm -rf "$DATA" "$OUT"' EXIT
@@ -23,8 +31,8 @@ PID=$!
 for _ in $(seq 100); do grep -q listening "$OUT" 2>/dev/null && break; sleep 0.1; done
 BASE=$(sed -n 's/^listening on //p' "$OUT")
 json() { python3 -c "import json,sys; print(json.load(sys.stdin)$1)"; }
-A=$(curl -s -XPOST "$BASE/v1/trees/generate" -H 'content-type: application/json' -d '{"preset":"maple","seed":1,"size":2000}' | json "['id']")
-B=$(curl -s -XPOST "$BASE/v1/trees/generate" -H 'content-type: application/json' -d '{"preset":"conifer","seed":2,"size":2000}' | json "['id']")
+A=$(curl -s -XPOST "$BASE/v1/trees/generate" -H 'content-type: application/json' -d '{"preset":"maple","seed":1,"size":'"$SIZE"'}' | json "['id']")
+B=$(curl -s -XPOST "$BASE/v1/trees/generate" -H 'content-type: application/json' -d '{"preset":"conifer","seed":2,"size":'"$SIZE"'}' | json "['id']")
 # (sed, not python, in the timed path: the job document starts with its id.)
 job() { curl -s -XPOST "$BASE/v1/jobs" -H 'content-type: application/json' -d "{\"kind\":\"morph\",\"source\":\"$A\",\"target\":\"$B\",\"frames\":$1}" | sed -n 's/^{"id":"\([0-9a-f]*\)".*/\1/p'; }
 

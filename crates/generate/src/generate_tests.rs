@@ -806,6 +806,18 @@ fn texture_cache_indices_follow_all() {
     }
 }
 
+/// Regression (found by the property test below in CI): a tiny whorl
+/// spread moved group members less than a millimetre along the parent,
+/// giving branches shorter than a millimetre.
+#[test]
+fn a_tiny_whorl_spread_gives_no_sub_millimetre_branches() {
+    let options = GenerateOptions::new(Preset::Maple, 0)
+        .with_size(50)
+        .with_whorl_spread(0.003_310_867_4);
+    let tree = generate(&options).unwrap();
+    check_tree(&tree, &options).unwrap();
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 

@@ -138,6 +138,9 @@ struct Grower<'a> {
 }
 
 /// Grows the skeleton of `size` branches.
+/// Shortest step, in metres, between the nodes of a spread whorl.
+const MIN_SPREAD_STEP: f32 = 0.002;
+
 pub(crate) fn grow(sp: &Species, size: u32, spread: f32, rng: &mut ChaCha8Rng) -> Grown {
     let height = sp.height * height_factor(size);
     let fork_c = match sp.root {
@@ -544,7 +547,10 @@ impl Grower<'_> {
                                 dn
                             }
                         };
-                        let step = self.spread * seg / site.len as f32;
+                        // At least 2 mm: a tiny spread would otherwise
+                        // make sub-millimetre branches, which no mesh
+                        // resolves and analysis would treat as noise.
+                        let step = (self.spread * seg / site.len as f32).max(MIN_SPREAD_STEP);
                         pos += dn * step;
                         consumed += step;
                         attach = self.push_node(pos, prev, p.order);

@@ -126,7 +126,11 @@ export class Playback {
         }
       }
     }
-    if (this.position > last) this.position = last;
+    // Waiting at the live edge holds the clock on the newest frame. Once
+    // complete it may run on past it (the last frame shows for one frame
+    // time, then the wrap above loops): clamping it back to `last` there
+    // would undo every tick shorter than a frame and never loop.
+    if (this.position >= available || (!complete && this.position > last)) this.position = last;
     return Math.floor(this.position);
   }
 }

@@ -152,6 +152,21 @@ test('Playback waits at the live edge, then loops once complete', () => {
   assert.ok(p.playing);
 });
 
+// Regression (the browser test's 1-in-4 hang): when playback caught up
+// with the newest frame before the stream ended, it was held there and,
+// once complete, ticks shorter than a frame (60 Hz at 24 fps) were clamped
+// back each time, so it never looped.
+test('Playback at the live edge loops once complete, with ticks shorter than a frame', () => {
+  const p = new Playback({ fps: 24 });
+  p.playing = true;
+  for (let i = 0; i < 60; i++) p.tick(1 / 60, 12, false); // caught up, waiting
+  assert.equal(p.tick(1 / 60, 12, false), 11);
+  const shown = new Set();
+  for (let i = 0; i < 120; i++) shown.add(p.tick(1 / 60, 12, true));
+  assert.ok(shown.has(0) && shown.has(5), `looped: ${[...shown].sort((a, b) => a - b)}`);
+  assert.ok(p.playing);
+});
+
 test('Playback without loop stops at the last frame; seek moves the position', () => {
   const p = new Playback({ fps: 24, loop: false });
   p.playing = true;

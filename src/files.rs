@@ -128,7 +128,18 @@ pub fn tree_from_bytes(
     let kind = sniff(bytes).ok_or_else(|| LoadError::UnknownFormat {
         path: path.to_owned(),
     })?;
-    let tree = match kind {
+    Ok((tree_of_kind(bytes, kind, limits, path)?, kind))
+}
+
+/// Reads `bytes` as a tree file of `kind`, without sniffing (for callers
+/// told the kind, e.g. by a media type).
+pub fn tree_of_kind(
+    bytes: &[u8],
+    kind: TreeFileKind,
+    limits: &Limits,
+    path: &Path,
+) -> Result<Tree, LoadError> {
+    Ok(match kind {
         TreeFileKind::TreeJson => {
             treemorph_tree::json::from_slice(bytes, limits).map_err(|source| {
                 LoadError::TreeJson {
@@ -147,8 +158,7 @@ pub fn tree_from_bytes(
                 })?
                 .tree
         }
-    };
-    Ok((tree, kind))
+    })
 }
 
 /// Reads a tree file of any supported kind.

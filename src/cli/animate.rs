@@ -292,15 +292,25 @@ pub(super) fn morph(args: &MorphArgs) -> Result<(), Failure> {
     run_job(request, trees, &args.common)
 }
 
-pub(super) fn sketch(args: &SketchArgs) -> Result<(), Failure> {
-    let tree = load(&args.tree)?;
-    let bytes = std::fs::read(&args.sketch)
-        .with_context(|| format!("cannot read {}", args.sketch.display()))
+/// A sketch file as the wire types of a sketch request.
+pub(super) struct SketchFile {
+    /// The camera.
+    pub view: View,
+    /// The polyline.
+    pub sketch: SketchInput,
+    /// `Some(Crown)` when the file asks for the crown fit.
+    pub fit: Option<SketchFit>,
+}
+
+/// Reads a sketch file (`treemorph_sketch::parse_sketch_file`); a missing
+/// or invalid file is the caller's invalid input.
+pub(super) fn read_sketch_file(path: &Path) -> Result<SketchFile, Failure> {
+    let bytes = std::fs::read(path)
+        .with_context(|| format!("cannot read {}", path.display()))
         .map_err(Failure::invalid_input)?;
     let file = treemorph_sketch::parse_sketch_file(&bytes)
-        .map_err(|e| Failure::invalid_input(anyhow!("{}: {e}", args.sketch.display())))?;
-    let request = JobRequest::Sketch(SketchRequest {
-        tree: "tree".into(),
+        .map_err(|e| Failure::invalid_input(anyhow!("{}: {e}", path.display())))?;
+    Ok(SketchFile {
         view: View {
             eye: file.view.eye.to_array(),
             target: file.view.target.to_array(),
@@ -312,16 +322,33 @@ pub(super) fn sketch(args: &SketchArgs) -> Result<(), Failure> {
             points: file.sketch.points.iter().map(|p| p.to_array()).collect(),
             closed: file.sketch.closed,
         },
+        fit: match file.fit {
+            treemorph_sketch::Fit::Crown => Some(SketchFit::Crown),
+            _ => None,
+        },
+    })
+}
+
+impl From<MethodArg> for SketchMethod {
+    fn from(m: MethodArg) -> SketchMethod {
+        match m {
+            MethodArg::Multiscale => SketchMethod::Multiscale,
+            MethodArg::SingleCage => SketchMethod::SingleCage,
+        }
+    }
+}
+
+pub(super) fn sketch(args: &SketchArgs) -> Result<(), Failure> {
+    let tree = load(&args.tree)?;
+    let file = read_sketch_file(&args.sketch)?;
+    let request = JobRequest::Sketch(SketchRequest {
+        tree: "tree".into(),
+        view: file.view,
+        sketch: file.sketch,
         frames: args.common.frames,
         options: SketchJobOptions {
-            method: match args.method {
-                MethodArg::Multiscale => SketchMethod::Multiscale,
-                MethodArg::SingleCage => SketchMethod::SingleCage,
-            },
-            fit: match file.fit {
-                treemorph_sketch::Fit::Crown => Some(SketchFit::Crown),
-                _ => None,
-            },
+            method: args.method.into(),
+            fit: file.fit,
             keyframes: args.common.keyframes,
             animation_encoding: args.common.animation_encoding.into(),
         },

@@ -51,7 +51,7 @@ use reqwest::Method;
 use reqwest::header::CONTENT_TYPE;
 use treemorph_api::jobs::{
     JobInfo, JobRequest, JobStatus, LeafAssignment, Matching, MorphJobOptions, MorphRequest,
-    Outputs, SketchFit, SketchInput, SketchJobOptions, SketchMethod, SketchRequest, View,
+    Outputs, SketchJobOptions, SketchRequest,
 };
 use treemorph_api::trees::{GenerateRequest, TreeInfo};
 
@@ -339,34 +339,15 @@ fn outputs(formats: &[Format]) -> Outputs {
 /// the server. The file is parsed and validated here, so a bad file is an
 /// invalid-input error before anything is sent.
 fn sketch_request(a: &SketchArgs) -> Result<JobRequest, Failure> {
-    let bytes = std::fs::read(&a.sketch)
-        .with_context(|| format!("cannot read {}", a.sketch.display()))
-        .map_err(Failure::invalid_input)?;
-    let file = treemorph_sketch::parse_sketch_file(&bytes)
-        .map_err(|e| Failure::invalid_input(anyhow!("{}: {e}", a.sketch.display())))?;
+    let file = super::animate::read_sketch_file(&a.sketch)?;
     Ok(JobRequest::Sketch(SketchRequest {
         tree: a.tree.clone(),
-        view: View {
-            eye: file.view.eye.to_array(),
-            target: file.view.target.to_array(),
-            up: file.view.up.to_array(),
-            fov_deg: file.view.fov_deg,
-            ortho_height: file.view.ortho_height,
-        },
-        sketch: SketchInput {
-            points: file.sketch.points.iter().map(|p| p.to_array()).collect(),
-            closed: file.sketch.closed,
-        },
+        view: file.view,
+        sketch: file.sketch,
         frames: a.job.frames,
         options: SketchJobOptions {
-            method: match a.method {
-                MethodArg::Multiscale => SketchMethod::Multiscale,
-                MethodArg::SingleCage => SketchMethod::SingleCage,
-            },
-            fit: match file.fit {
-                treemorph_sketch::Fit::Crown => Some(SketchFit::Crown),
-                _ => None,
-            },
+            method: a.method.into(),
+            fit: file.fit,
             keyframes: a.job.keyframes,
             animation_encoding: a.job.animation_encoding.into(),
         },

@@ -55,13 +55,12 @@ pub fn is_too_slow<'a>(error: &'a (dyn std::error::Error + 'static)) -> Option<&
 /// When the body must have delivered more: the earlier of the idle
 /// deadline and the moment the average rate falls under the minimum.
 fn deadline(limits: &Limits, started: Instant, last: Instant, received: u64) -> Instant {
-    let rate_deadline = if limits.min_rate == 0 {
-        Instant::now() + Duration::from_secs(365 * 24 * 3600)
-    } else {
-        let allowed = Duration::from_secs_f64(received as f64 / limits.min_rate as f64);
-        started + limits.grace.max(allowed)
-    };
-    (last + limits.idle).min(rate_deadline)
+    let idle = last + limits.idle;
+    if limits.min_rate == 0 {
+        return idle;
+    }
+    let allowed = Duration::from_secs_f64(received as f64 / limits.min_rate as f64);
+    idle.min(started + limits.grace.max(allowed))
 }
 
 /// Wraps `body` in the guard.

@@ -31,7 +31,7 @@ use super::extract::{
 };
 use super::{AppState, Owner, blob};
 use crate::error::ApiError;
-use crate::files::{LoadError, TreeFileKind, tree_from_bytes};
+use crate::files::{LoadError, TreeFileKind, tree_of_kind};
 use crate::store::trees::{DeleteTree, TreeRow, blob_prefix};
 use crate::store::{new_id, now_ms};
 use treemorph_import::ImportError;
@@ -273,28 +273,22 @@ pub async fn post(
     let prepared = tokio::task::spawn_blocking(move || -> Result<Prepared, ApiError> {
         let bytes = std::fs::read(spooled.path()).map_err(ApiError::internal)?;
         drop(spooled);
-        let limits = Limits::default();
-        let (tree, kind) = match (declared, crate::files::sniff(&bytes)) {
+        let upload = FsPath::new("upload");
+        let kind = match crate::files::sniff(&bytes) {
             // JSON declared as glTF is read as glTF even when broken or
             // without `asset` (which the sniffer would hand to the tree
             // JSON parser): the client learns what is wrong with its glTF.
-            (TreeFileKind::Gltf, Some(TreeFileKind::TreeJson)) => {
-                let imported =
-                    treemorph_import::import(&bytes, &crate::files::import_options(&limits))
-                        .map_err(|source| {
-                            load_error(
-                                LoadError::Gltf {
-                                    path: FsPath::new("upload").to_owned(),
-                                    source,
-                                },
-                                declared,
-                            )
-                        })?;
-                (imported.tree, TreeFileKind::Gltf)
+            Some(TreeFileKind::TreeJson) if declared == TreeFileKind::Gltf => TreeFileKind::Gltf,
+            Some(kind) => kind,
+            None => {
+                let unknown = LoadError::UnknownFormat {
+                    path: upload.to_owned(),
+                };
+                return Err(load_error(unknown, declared));
             }
-            _ => tree_from_bytes(&bytes, &limits, FsPath::new("upload"))
-                .map_err(|e| load_error(e, declared))?,
         };
+        let tree = tree_of_kind(&bytes, kind, &Limits::default(), upload)
+            .map_err(|e| load_error(e, declared))?;
         if kind != declared {
             return Err(ApiError::new(
                 invalid_code(declared),
@@ -528,6 +522,21 @@ pub async fn get(
     Ok(Json(find(&state, &owner, &id).await?.info()))
 }
 
+/// Serves one stored file of `owner`'s tree `id` (404 for another key's
+/// tree or none), with ranges and ETags.
+async fn serve_file(
+    state: &AppState,
+    owner: &Owner,
+    id: &str,
+    headers: &HeaderMap,
+    name: &str,
+    media_type: &'static str,
+) -> Result<Response, ApiError> {
+    find(state, owner, id).await?;
+    let key = format!("{}/{name}", blob_prefix(id));
+    blob::serve(&state.services.blobs, &key, media_type, headers, "tree").await
+}
+
 /// Download the tree as GLB (our export, with the tree embedded).
 #[utoipa::path(
     get,
@@ -554,14 +563,13 @@ pub async fn model_glb(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    find(&state, &owner, &id).await?;
-    let key = format!("{}/model.glb", blob_prefix(&id));
-    blob::serve(
-        &state.services.blobs,
-        &key,
-        "model/gltf-binary",
+    serve_file(
+        &state,
+        &owner,
+        &id,
         &headers,
-        "tree",
+        "model.glb",
+        "model/gltf-binary",
     )
     .await
 }
@@ -591,14 +599,13 @@ pub async fn tree_json(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    find(&state, &owner, &id).await?;
-    let key = format!("{}/tree.json", blob_prefix(&id));
-    blob::serve(
-        &state.services.blobs,
-        &key,
-        treemorph_tree::json::MEDIA_TYPE,
+    serve_file(
+        &state,
+        &owner,
+        &id,
         &headers,
-        "tree",
+        "tree.json",
+        treemorph_tree::json::MEDIA_TYPE,
     )
     .await
 }
@@ -628,14 +635,13 @@ pub async fn analysis(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    find(&state, &owner, &id).await?;
-    let key = format!("{}/analysis.json", blob_prefix(&id));
-    blob::serve(
-        &state.services.blobs,
-        &key,
-        "application/json",
+    serve_file(
+        &state,
+        &owner,
+        &id,
         &headers,
-        "tree",
+        "analysis.json",
+        "application/json",
     )
     .await
 }

@@ -169,3 +169,18 @@ pub fn error_code(body: &Value) -> &str {
     );
     body["error"]["code"].as_str().expect("error code")
 }
+
+/// The base URL a spawned `treemorph serve --listen 127.0.0.1:0` prints
+/// as its first stdout line (`listening on URL`); the line itself when it
+/// is something else.
+pub fn base_url(child: &mut std::process::Child) -> Result<String, String> {
+    use std::io::BufRead;
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().expect("stdout is piped"))
+        .read_line(&mut line)
+        .map_err(|e| e.to_string())?;
+    line.trim()
+        .strip_prefix("listening on ")
+        .map(str::to_owned)
+        .ok_or(line)
+}

@@ -27,7 +27,6 @@
 //! and traces in (a temporary directory otherwise).
 
 use std::collections::{BTreeMap, HashMap, HashSet};
-use std::io::BufRead;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -100,20 +99,12 @@ impl Fleet {
             self.logs.join(format!("{name}.pid")),
             child.id().to_string(),
         );
-        let mut line = String::new();
-        std::io::BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let base = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| {
-                panic!(
-                    "{name} did not start (first line {line:?}); see {}",
-                    self.logs.join(format!("{name}.log")).display()
-                )
-            })
-            .to_owned();
+        let base = crate::common::base_url(&mut child).unwrap_or_else(|line| {
+            panic!(
+                "{name} did not start (first line {line:?}); see {}",
+                self.logs.join(format!("{name}.log")).display()
+            )
+        });
         Proc {
             child,
             base,

@@ -25,7 +25,6 @@
 //! reported, but a slow code path (one that does work proportional to a
 //! declared size) is.
 
-use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -73,15 +72,8 @@ impl Server {
             .stderr(Stdio::from(log))
             .spawn()
             .unwrap();
-        let mut line = String::new();
-        std::io::BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let base = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-            .to_owned();
+        let base = crate::common::base_url(&mut child)
+            .unwrap_or_else(|line| panic!("unexpected first line {line:?}"));
         Server {
             child,
             base,

@@ -2,7 +2,6 @@
 //! drains (the in-flight job finishes, or is released and later completes).
 //! These use the test-only runner (`TREEMORPH_TEST_RUNNER=slow:MS`).
 
-use std::io::BufRead;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -41,15 +40,8 @@ fn start(dir: &std::path::Path, runner: &str, extra: &[&str]) -> Server {
         .stderr(Stdio::from(log))
         .spawn()
         .unwrap();
-    let mut line = String::new();
-    std::io::BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_owned();
+    let addr = crate::common::base_url(&mut child)
+        .unwrap_or_else(|line| panic!("unexpected first line {line:?}"));
     Server {
         child,
         base: addr,

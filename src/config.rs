@@ -126,6 +126,11 @@ pub struct Settings {
     /// Most frames a job may request.
     #[arg(long, env = "TREEMORPH_MAX_FRAMES", default_value_t = 600)]
     pub max_frames: u32,
+    /// Memory for parsed and analysed input trees kept between jobs, in
+    /// MiB (measured by the trees' stored JSON size); 0 turns the cache
+    /// off. Processes that run no workers (`--role api`) keep none.
+    #[arg(long, env = "TREEMORPH_TREE_CACHE_MB", default_value_t = 256)]
+    pub tree_cache_mb: u64,
     /// Milliseconds between database polls of SSE and stream subscribers
     /// and idle workers (the cross-process path; in-process changes are
     /// pushed at once).

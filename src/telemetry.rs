@@ -11,10 +11,14 @@
 //!   `treemorph_job_stage_duration_seconds{kind, stage}` — observed by the
 //!   worker process that ran the attempt.
 //! - `treemorph_jobs_in_flight` — attempts running in this process.
+//! - `treemorph_tree_cache_lookups_total{result}` — input trees a worker
+//!   found in its tree cache (`hit`) or loaded from the blob store
+//!   (`miss`).
 
 use std::time::Duration;
 
 use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
@@ -44,6 +48,11 @@ struct StageLabels {
     stage: String,
 }
 
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct CacheLabels {
+    result: &'static str,
+}
+
 type HistogramFamily<L> = Family<L, Histogram, fn() -> Histogram>;
 
 fn http_histogram() -> Histogram {
@@ -64,6 +73,7 @@ pub struct Metrics {
     stage_duration: HistogramFamily<StageLabels>,
     /// Attempts running in this process.
     pub jobs_in_flight: Gauge,
+    tree_cache: Family<CacheLabels, Counter>,
 }
 
 impl Default for Metrics {
@@ -79,6 +89,7 @@ impl Default for Metrics {
             job_histogram as fn() -> Histogram,
         );
         let jobs_in_flight = Gauge::default();
+        let tree_cache = Family::<CacheLabels, Counter>::default();
         registry.register(
             "http_request_duration_seconds",
             "HTTP request latency by route template and status",
@@ -104,6 +115,11 @@ impl Default for Metrics {
             "Job attempts running in this process",
             jobs_in_flight.clone(),
         );
+        registry.register(
+            "tree_cache_lookups",
+            "Input trees found in the tree cache (hit) or loaded from the blob store (miss)",
+            tree_cache.clone(),
+        );
         Metrics {
             registry,
             http,
@@ -111,6 +127,7 @@ impl Default for Metrics {
             job_duration,
             stage_duration,
             jobs_in_flight,
+            tree_cache,
         }
     }
 }
@@ -145,6 +162,12 @@ impl Metrics {
                 stage: stage.to_owned(),
             })
             .observe(elapsed.as_secs_f64());
+    }
+
+    /// Records one tree-cache lookup by a worker.
+    pub fn observe_tree_cache(&self, hit: bool) {
+        let result = if hit { "hit" } else { "miss" };
+        self.tree_cache.get_or_create(&CacheLabels { result }).inc();
     }
 
     /// Encodes every metric, with the job counts given (from the database).

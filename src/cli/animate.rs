@@ -15,11 +15,13 @@ use treemorph_api::jobs::{
     AnimationEncoding, JobRequest, LeafAssignment, Matching, MorphJobOptions, MorphRequest,
     Outputs, SketchFit, SketchInput, SketchJobOptions, SketchMethod, SketchRequest, View,
 };
-use treemorph_tree::{Limits, Tree};
+use treemorph_tree::Limits;
 
 use super::{EXIT_INVALID_INPUT, EXIT_USAGE, Failure, progress};
 use crate::files::{load_tree, write_atomic};
-use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, SinkError, default_runner, stage};
+use crate::pipeline::{
+    FrameOutput, InputTree, JobError, JobInput, JobSink, SinkError, default_runner, stage,
+};
 
 /// Which outputs to write.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -209,9 +211,9 @@ impl JobSink for DirSink {
     }
 }
 
-fn load(path: &Path) -> Result<Arc<Tree>, Failure> {
+fn load(path: &Path) -> Result<Arc<InputTree>, Failure> {
     let (tree, _) = load_tree(path, &Limits::default()).map_err(Failure::invalid_input)?;
-    Ok(Arc::new(tree))
+    Ok(Arc::new(InputTree::new(tree)))
 }
 
 fn job_failure(e: JobError) -> Failure {
@@ -232,7 +234,7 @@ fn job_failure(e: JobError) -> Failure {
 
 fn run_job(
     request: JobRequest,
-    trees: HashMap<String, Arc<Tree>>,
+    trees: HashMap<String, Arc<InputTree>>,
     common: &Common,
 ) -> Result<(), Failure> {
     let runner = default_runner();

@@ -92,5 +92,21 @@ pub(super) fn run(args: &Args) -> Result<(), Failure> {
         s.bounds[1][1],
         s.bounds[1][2]
     );
+    if let Some(a) = &report.analysis {
+        let p = &a.patterns;
+        println!("chains    {}", a.chains);
+        println!(
+            "groups    {} (alternate {}, opposite {}, whorled {})",
+            a.chain_groups, p.alternate, p.opposite, p.whorled
+        );
+        let histogram: Vec<String> = a.orders.histogram.iter().map(usize::to_string).collect();
+        println!("orders    1..{}", a.orders.max);
+        println!("by order  {}", histogram.join(" "));
+        println!("bptt      {} levels", a.bptt_depth);
+        println!(
+            "lobes     inner {}, outer {}, group outer {}",
+            a.lobes.inner, a.lobes.outer, a.lobes.group_outer
+        );
+    }
     Ok(())
 }

@@ -9,10 +9,11 @@
 //!    survives any crash.
 //! 2. A worker claims it (a lease with a fresh attempt token, see
 //!    [`queue`]), loads the trees it names from the blob store, and runs the
-//!    [`crate::pipeline::Runner`] on a blocking thread (`spawn_blocking`;
-//!    the pipeline's CPU work uses the rayon pool and never blocks the async
-//!    runtime). A panic is caught and fails the job with `internal`; the
-//!    worker lives on.
+//!    [`crate::pipeline::Runner`] on a thread of its own (the pipeline's CPU
+//!    work fans out on the rayon pool and never blocks the async runtime;
+//!    both run at a lower CPU priority than the runtime, see [`priority`]).
+//!    A panic is caught and fails the job with `internal`; the worker lives
+//!    on.
 //! 3. Outputs are published through the [`sink::BlobSink`]: blob first,
 //!    then a fenced row update that makes it visible (publish by commit).
 //! 4. The job ends with one fenced update (`succeeded`/`failed`/
@@ -30,9 +31,11 @@
 //! worker in this process directly through the [`Hub`].
 
 pub mod bench;
+pub mod priority;
 pub mod queue;
 pub mod sink;
 pub mod testing;
+pub mod tree_cache;
 pub mod webhooks;
 pub mod worker;
 
@@ -107,6 +110,8 @@ pub struct Services {
     pub hub: Arc<Hub>,
     /// The pipeline.
     pub runner: Arc<dyn crate::pipeline::Runner>,
+    /// Parsed and analysed input trees, by id.
+    pub trees: Arc<tree_cache::TreeCache>,
     /// Prometheus metrics.
     pub metrics: Arc<crate::telemetry::Metrics>,
     /// The webhook signing key (decoded `whsec_` secret).

@@ -1,13 +1,18 @@
 //! [`BlobSink`]: where a running pipeline publishes progress and outputs.
 //!
-//! The runner calls the sink on its blocking thread; the sink drives the
-//! async blob store and database with `Handle::block_on` (allowed on
-//! `spawn_blocking` threads). Every output is written to the blob store
+//! The runner calls the sink on its job thread; the sink drives the async
+//! database (and S3) with `Handle::block_on` and writes local blobs on the
+//! job thread itself, at job priority ([`Blobs::put_deferred_here`]). Every output is written to the blob store
 //! under the attempt's prefix **first**, and only then made visible by a
 //! row update fenced by the attempt token (`frames_ready = n + 1`,
 //! `header_ready = 1`). When a fenced update matches nothing, the attempt
 //! has lost its lease: the sink reports it (`cancelled()` turns true, every
 //! later publish fails) and the worker drops the attempt's outcome.
+//!
+//! Blobs are written with [`Blobs::put_deferred`] (visible at once, safe
+//! against a killed process) and made durable together by
+//! [`BlobSink::sync_outputs`] before the commit that ends the attempt (see
+//! [`crate::store::blobs`] for why, and the window it leaves).
 //!
 //! Progress updates are throttled (a stage change is written at once, mere
 //! progress at most every 100 ms) so a fast pipeline does not turn into a
@@ -73,6 +78,8 @@ pub struct BlobSink {
     header: bool,
     frame_glbs: bool,
     files: Vec<String>,
+    /// Every blob written, to be synced at the end.
+    written: Vec<String>,
 }
 
 impl std::fmt::Debug for BlobSink {
@@ -119,7 +126,19 @@ impl BlobSink {
             header: false,
             frame_glbs: false,
             files: Vec::new(),
+            written: Vec::new(),
         }
+    }
+
+    /// Makes every blob this attempt wrote durable. The worker calls it
+    /// before recording the attempt's end, so the outputs of an ended job
+    /// survive power loss; a failure counts as a storage fault (the
+    /// attempt is retried).
+    pub fn sync_outputs(&mut self) -> Result<(), SinkError> {
+        let keys = std::mem::take(&mut self.written);
+        self.blobs
+            .sync_here(&keys)
+            .map_err(|e| self.storage(&format!("{} outputs", keys.len()), e))
     }
 
     /// Frames published.
@@ -145,13 +164,15 @@ impl BlobSink {
         self.stage_started = Instant::now();
     }
 
-    fn put(&self, what: &str, key: String, bytes: Vec<u8>) -> Result<(), SinkError> {
+    fn put(&mut self, what: &str, key: String, bytes: Vec<u8>) -> Result<(), SinkError> {
         if self.flags.lost.load(Ordering::SeqCst) {
             return Err(self.lost(what));
         }
-        self.rt
-            .block_on(self.blobs.put(&key, bytes))
-            .map_err(|e| self.storage(what, e))
+        self.blobs
+            .put_deferred_here(&self.rt, &key, bytes)
+            .map_err(|e| self.storage(what, e))?;
+        self.written.push(key);
+        Ok(())
     }
 
     fn commit(&self, what: &str, result: Result<bool, sqlx::Error>) -> Result<(), SinkError> {
@@ -243,6 +264,7 @@ impl JobSink for BlobSink {
                 ),
             });
         }
+        // Both blobs first; the row update below publishes them together.
         if let Some(glb) = frame.glb {
             self.put(&what, frame_glb_key(&self.prefix, frame.index), glb)?;
             self.frame_glbs = true;

@@ -459,13 +459,13 @@ mod tests {
             outputs: Outputs::default(),
             callback_url: None,
         });
-        let tree = Arc::new(
+        let tree = Arc::new(crate::pipeline::InputTree::new(
             treemorph_generate::generate(
                 &treemorph_generate::GenerateOptions::new(treemorph_generate::Preset::Maple, 1)
                     .with_size(60),
             )
             .unwrap(),
-        );
+        ));
         let trees = HashMap::from([("a".to_owned(), tree.clone()), ("b".to_owned(), tree)]);
         let mut sink = Sink::default();
         let input = JobInput {

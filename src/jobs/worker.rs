@@ -2,7 +2,7 @@
 //! webhook deliverer, plus graceful shutdown.
 //!
 //! Each worker claims one job at a time (see [`super::queue`]) and runs it
-//! on a blocking thread. Beside the attempt runs a *watcher* task that,
+//! on a thread of its own at job priority. Beside the attempt runs a *watcher* task that,
 //! every `--poll-ms`, reads the job's row (fenced by the token): it renews
 //! the lease every third of its duration, raises the cancellation flag when
 //! a client cancelled the job from any process, and notices a lost lease.
@@ -28,12 +28,12 @@ use tokio::sync::watch;
 use tokio::task::JoinSet;
 use treemorph_api::ErrorCode;
 use treemorph_api::jobs::JobRequest;
-use treemorph_tree::{Limits, Tree};
+use treemorph_tree::Limits;
 
 use super::queue::{self, Claim, End, JobRow, Lease, StoredResult};
 use super::sink::{BlobSink, Flags};
 use super::{Services, backoff_ms};
-use crate::pipeline::{JobError, JobInput, JobOutcome};
+use crate::pipeline::{InputTree, JobError, JobInput, JobOutcome};
 use crate::store::now_ms;
 
 /// In-flight attempts of this process: job id → (token, flags).
@@ -54,6 +54,9 @@ impl Pool {
     /// reclaimer (which first runs at once, so jobs of a crashed process
     /// resume) and the webhook deliverer.
     pub fn start(services: Services) -> Pool {
+        if services.settings.worker_count() > 0 && !super::priority::lower_rayon_pool() {
+            tracing::debug!("the rayon pool existed already; its threads keep their priority");
+        }
         let (stop, stop_rx) = watch::channel(false);
         let in_flight: InFlight = Arc::default();
         let mut workers = JoinSet::new();
@@ -270,48 +273,63 @@ async fn watch_lease(services: Services, id: String, token: String, flags: Arc<F
 async fn load_trees(
     services: &Services,
     request: &JobRequest,
-) -> Result<HashMap<String, Arc<Tree>>, JobError> {
-    let mut trees = HashMap::new();
-    for id in request.tree_ids() {
-        if trees.contains_key(id) {
-            continue;
-        }
-        let key = format!("{}/tree.json", crate::store::trees::blob_prefix(id));
-        let bytes = match services.blobs.get(&key).await {
-            Ok(Some(b)) => b,
-            Ok(None) => {
-                return Err(JobError {
-                    code: ErrorCode::TreeNotFound,
-                    message: format!("tree {id} no longer exists"),
-                    retryable: false,
-                });
-            }
-            Err(e) => {
-                tracing::warn!(tree = %id, error = %e, "loading a tree failed");
-                return Err(JobError {
-                    code: ErrorCode::Unavailable,
-                    message: "the blob store is unavailable".into(),
-                    retryable: true,
-                });
-            }
-        };
-        let tree = tokio::task::spawn_blocking(move || {
-            treemorph_tree::json::from_slice(&bytes, &Limits::default())
-        })
-        .await
-        .map_err(|e| JobError {
-            code: ErrorCode::Internal,
-            message: format!("loading the tree failed: {e}"),
-            retryable: false,
-        })?
-        .map_err(|e| JobError {
-            code: ErrorCode::Internal,
-            message: format!("stored tree {id} is unreadable: {e}"),
-            retryable: false,
-        })?;
-        trees.insert(id.to_owned(), Arc::new(tree));
+) -> Result<HashMap<String, Arc<InputTree>>, JobError> {
+    let mut ids = request.tree_ids();
+    ids.dedup();
+    // The trees of a morph are read and parsed side by side.
+    let loaded = futures_util::future::join_all(ids.iter().map(|id| load_tree(services, id))).await;
+    ids.iter()
+        .zip(loaded)
+        .map(|(id, tree)| Ok(((*id).to_owned(), tree?)))
+        .collect()
+}
+
+/// One input tree: from the tree cache, or read from the blob store,
+/// parsed and cached (the runner then analyses it in place, so the next
+/// job on it finds the analysis too).
+async fn load_tree(services: &Services, id: &str) -> Result<Arc<InputTree>, JobError> {
+    if let Some(cached) = services.trees.get(id) {
+        services.metrics.observe_tree_cache(true);
+        return Ok(cached);
     }
-    Ok(trees)
+    services.metrics.observe_tree_cache(false);
+    let key = format!("{}/tree.json", crate::store::trees::blob_prefix(id));
+    let bytes = match services.blobs.get(&key).await {
+        Ok(Some(b)) => b,
+        Ok(None) => {
+            return Err(JobError {
+                code: ErrorCode::TreeNotFound,
+                message: format!("tree {id} no longer exists"),
+                retryable: false,
+            });
+        }
+        Err(e) => {
+            tracing::warn!(tree = %id, error = %e, "loading a tree failed");
+            return Err(JobError {
+                code: ErrorCode::Unavailable,
+                message: "the blob store is unavailable".into(),
+                retryable: true,
+            });
+        }
+    };
+    let json_bytes = bytes.len() as u64;
+    let tree = tokio::task::spawn_blocking(move || {
+        treemorph_tree::json::from_slice(&bytes, &Limits::default())
+    })
+    .await
+    .map_err(|e| JobError {
+        code: ErrorCode::Internal,
+        message: format!("loading the tree failed: {e}"),
+        retryable: false,
+    })?
+    .map_err(|e| JobError {
+        code: ErrorCode::Internal,
+        message: format!("stored tree {id} is unreadable: {e}"),
+        retryable: false,
+    })?;
+    let tree = Arc::new(InputTree::new(tree));
+    services.trees.insert(id, tree.clone(), json_bytes);
+    Ok(tree)
 }
 
 async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flags>) -> Ran {
@@ -342,20 +360,47 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
         flags,
     ));
     let runner = services.runner.clone();
-    let joined = tokio::task::spawn_blocking(move || {
+    // A thread of its own at job priority (see `super::priority`), not the
+    // runtime's blocking pool, whose threads also serve file reads for
+    // requests and would keep the lowered priority.
+    let (done, joined) = tokio::sync::oneshot::channel();
+    let work = move || {
+        super::priority::lower_this_thread();
         let input = JobInput {
             request: &request,
             trees: &trees,
         };
         let result = catch_unwind(AssertUnwindSafe(|| runner.run(&input, sink.as_mut())));
+        // Whatever the outcome, the outputs clients may already have seen
+        // become durable before the attempt's end is recorded. A job that
+        // succeeded but whose outputs cannot be synced is retried.
+        let result = match (result, sink.sync_outputs()) {
+            (Ok(Ok(_)), Err(e)) => Ok(Err(JobError {
+                code: ErrorCode::Unavailable,
+                message: e.to_string(),
+                retryable: true,
+            })),
+            (result, _) => result,
+        };
         sink.close_stage();
-        (result, sink)
-    })
-    .await;
-    match joined {
+        let _ = done.send((result, sink));
+    };
+    if let Err(e) = std::thread::Builder::new()
+        .name(format!("job-{}", row.id))
+        .spawn(work)
+    {
+        return Ran::NotStarted(JobError {
+            code: ErrorCode::Unavailable,
+            message: format!("could not start a job thread: {e}"),
+            retryable: true,
+        });
+    }
+    match joined.await {
         Ok((Ok(result), sink)) => Ran::Finished(result, sink),
         Ok((Err(payload), _)) => Ran::Panicked(panic_message(payload.as_ref())),
-        Err(e) => Ran::Panicked(e.to_string()),
+        // The thread ended without an answer: a panic outside the runner
+        // (in the sink's sync or stage bookkeeping).
+        Err(_) => Ran::Panicked("the job thread stopped without a result".into()),
     }
 }
 

@@ -11,8 +11,9 @@
 //! play before the job ends) and polls [`JobSink::cancelled`] between frames.
 
 use std::collections::HashMap;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
+use treemorph_analysis::{Analysis, AnalysisError, AnalysisOptions};
 use treemorph_api::ErrorCode;
 use treemorph_api::jobs::JobRequest;
 use treemorph_tree::Tree;
@@ -113,13 +114,74 @@ pub struct JobError {
     pub retryable: bool,
 }
 
+/// An input tree with its skeleton-lobe analysis, computed at most once.
+///
+/// A stored tree never changes (a new upload gets a new id), so one
+/// analysis serves every job that names the tree: the service keeps these
+/// in its tree cache (`crate::jobs::tree_cache`), seeded by the upload that
+/// analysed the tree already, and a job on a cached tree starts planning at
+/// once instead of parsing and analysing both trees again.
+#[derive(Debug)]
+pub struct InputTree {
+    tree: Tree,
+    analysis: OnceLock<Analysis>,
+}
+
+impl InputTree {
+    /// A tree whose analysis is computed on first use.
+    pub fn new(tree: Tree) -> InputTree {
+        InputTree {
+            tree,
+            analysis: OnceLock::new(),
+        }
+    }
+
+    /// A tree with its analysis already computed (with the default
+    /// options, the only ones jobs use).
+    pub fn with_analysis(tree: Tree, analysis: Analysis) -> InputTree {
+        InputTree {
+            tree,
+            analysis: OnceLock::from(analysis),
+        }
+    }
+
+    /// The tree.
+    pub fn tree(&self) -> &Tree {
+        &self.tree
+    }
+
+    /// Whether the analysis has been computed.
+    pub fn is_analysed(&self) -> bool {
+        self.analysis.get().is_some()
+    }
+
+    /// The tree's analysis with the default options, computed on the first
+    /// call. Two threads racing here may both compute it; one result is
+    /// kept (they are equal), which is cheaper than holding a lock across
+    /// tens of milliseconds of work. Errors are not kept: the stored trees
+    /// were analysed when uploaded, so an error here is exceptional.
+    pub fn analysis(&self) -> Result<&Analysis, AnalysisError> {
+        if let Some(a) = self.analysis.get() {
+            return Ok(a);
+        }
+        let computed = Analysis::of(&self.tree, &AnalysisOptions::default())?;
+        Ok(self.analysis.get_or_init(|| computed))
+    }
+}
+
+impl From<Tree> for InputTree {
+    fn from(tree: Tree) -> InputTree {
+        InputTree::new(tree)
+    }
+}
+
 /// A claimed job with its input trees loaded.
 #[derive(Debug)]
 pub struct JobInput<'a> {
     /// The validated request.
     pub request: &'a JobRequest,
     /// The trees the request names, by id.
-    pub trees: &'a HashMap<String, Arc<Tree>>,
+    pub trees: &'a HashMap<String, Arc<InputTree>>,
 }
 
 /// Runs jobs. Implementations are synchronous and CPU-bound; the queue calls

@@ -8,10 +8,8 @@
 //! published before frame 0, so clients start playing at once), the
 //! per-frame GLB, the animated GLB's keyframes and the metrics.
 
-use std::sync::Arc;
-
 use serde_json::{Value, json};
-use treemorph_analysis::{Analysis, AnalysisOptions};
+use treemorph_analysis::Analysis;
 use treemorph_api::ErrorCode;
 use treemorph_api::jobs::{
     AnimationEncoding, JobRequest, LeafAssignment, Matching, MorphRequest, Outputs, SketchRequest,
@@ -25,9 +23,11 @@ use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphOptions, MorphPlan, Morpher};
 use treemorph_sketch::{Fit, Method, SketchMetrics, SketchOptions, SketchPlan, Sketcher};
 use treemorph_tree::glam::{Vec2, Vec3};
-use treemorph_tree::{Aabb, Frame, FrameTopology, Tree};
+use treemorph_tree::{Aabb, Frame, FrameTopology};
 
-use super::{FrameOutput, JobError, JobInput, JobOutcome, JobSink, Runner, SinkError, stage};
+use super::{
+    FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, Runner, SinkError, stage,
+};
 
 /// Fewest and most frames a job may ask for.
 pub const FRAMES_RANGE: std::ops::RangeInclusive<u32> = 2..=600;
@@ -186,8 +186,8 @@ impl Runner for PipelineRunner {
 
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
         self.check(input.request)?;
-        let tree = |id: &str| -> Result<&Arc<Tree>, JobError> {
-            input.trees.get(id).ok_or_else(|| {
+        let tree = |id: &str| -> Result<&InputTree, JobError> {
+            input.trees.get(id).map(|t| &**t).ok_or_else(|| {
                 invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
             })
         };
@@ -198,31 +198,35 @@ impl Runner for PipelineRunner {
     }
 }
 
-fn analyse(tree: &Tree) -> Result<Analysis, JobError> {
-    Analysis::of(tree, &AnalysisOptions::default()).map_err(|e| {
+fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
+    input.analysis().map_err(|e| {
         invalid(
             ErrorCode::InvalidTree,
-            format!("tree {:?}: {e}", tree.name()),
+            format!("tree {:?}: {e}", input.tree().name()),
         )
     })
 }
 
 fn run_morph(
     request: &MorphRequest,
-    source: &Tree,
-    target: &Tree,
+    source_input: &InputTree,
+    target_input: &InputTree,
     sink: &mut dyn JobSink,
 ) -> Result<JobOutcome, JobError> {
     let options = morph_options(request)?;
     sink.stage(stage::ANALYSING, 0.02);
-    let a = analyse(source)?;
-    let b = analyse(target)?;
+    // Trees the cache has not analysed yet are analysed side by side.
+    let (a, b) = rayon::join(|| analyse(source_input), || analyse(target_input));
+    let (a, b) = (a?, b?);
+    let (source, target) = (source_input.tree(), target_input.tree());
     if sink.cancelled() {
         return Err(cancelled());
     }
     sink.stage(stage::PLANNING, 0.08);
-    let plan = MorphPlan::new(source, &a, target, &b, &options)
+    let started = std::time::Instant::now();
+    let plan = MorphPlan::new(source, a, target, b, &options)
         .map_err(|e| invalid(ErrorCode::IncompatibleTrees, e.to_string()))?;
+    tracing::debug!(ms = started.elapsed().as_secs_f64() * 1e3, "morph planned");
     let mut morpher = Morpher::new(&plan);
     let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
     let n = request.frames as usize;
@@ -297,17 +301,18 @@ impl MorphSeries {
 
 fn run_sketch(
     request: &SketchRequest,
-    tree: &Tree,
+    input: &InputTree,
     sink: &mut dyn JobSink,
 ) -> Result<JobOutcome, JobError> {
     let (view, sketch, options) = sketch_inputs(request)?;
     sink.stage(stage::ANALYSING, 0.02);
-    let analysis = analyse(tree)?;
+    let analysis = analyse(input)?;
+    let tree = input.tree();
     if sink.cancelled() {
         return Err(cancelled());
     }
     sink.stage(stage::PLANNING, 0.08);
-    let plan = SketchPlan::new(tree, &analysis, &view, &sketch, &options)
+    let plan = SketchPlan::new(tree, analysis, &view, &sketch, &options)
         .map_err(|e| invalid(ErrorCode::InvalidSketch, e.to_string()))?;
     let mut sketcher = Sketcher::new(&plan);
     let mut meter = SketchMetrics::new(&plan);
@@ -417,6 +422,7 @@ fn render(
     };
     // Side counts and the quantisation grid must hold for the whole
     // sequence, so they come from a few probes before the first frame.
+    let started = std::time::Instant::now();
     let mut probes = Vec::with_capacity(PROBES.len());
     for &t in &PROBES {
         eval(t, &mut frame);
@@ -428,6 +434,7 @@ fn render(
         .map(frame_bounds)
         .fold(Aabb::EMPTY, Aabb::union);
     drop(probes);
+    tracing::debug!(ms = started.elapsed().as_secs_f64() * 1e3, "probes sampled");
 
     let mut stream = if outputs.delta {
         let options = StreamOptions::default().with_frame_count(frames);
@@ -466,36 +473,41 @@ fn render(
             return Err(cancelled());
         }
         let t = time(i);
+        let started = std::time::Instant::now();
         eval(t, &mut frame);
-        measure(&frame);
+        let eval_ms = started.elapsed().as_secs_f64() * 1e3;
+        // The stream record and the GLB are independent encodings of the
+        // same frame, so they are made side by side: on an idle core this
+        // halves the time to publish a frame (the first frame's record
+        // carries the stream header, as slow to build as the GLB).
+        let (header, glb_bytes) = rayon::join(
+            || -> Result<Option<usize>, EncodeError> {
+                let Some(stream) = &mut stream else {
+                    return Ok(None);
+                };
+                record.clear();
+                stream.write_frame(&frame, &mut record)?;
+                Ok(Some(if i == 0 {
+                    stream.header_bytes().map_or(0, <[u8]>::len)
+                } else {
+                    0
+                }))
+            },
+            || glb.as_mut().map(|w| w.write(&frame)).transpose(),
+        );
+        let (header, glb_bytes) = (header.map_err(encode)?, glb_bytes.map_err(encode)?);
+        let encoded_ms = started.elapsed().as_secs_f64() * 1e3;
         let mut delta = Vec::new();
-        if let Some(stream) = &mut stream {
-            record.clear();
-            stream.write_frame(&frame, &mut record).map_err(encode)?;
-            let header = if i == 0 {
-                stream
-                    .header_bytes()
-                    .ok_or_else(|| internal("the delta stream wrote no header"))?
-                    .len()
-            } else {
-                0
-            };
+        if let Some(header) = header {
             if i == 0 {
+                if header == 0 {
+                    return Err(internal("the delta stream wrote no header"));
+                }
                 sink.stream_header(record[..header].to_vec())
                     .map_err(stored)?;
             }
             whole_stream.extend_from_slice(&record);
             delta = record[header..].to_vec();
-        }
-        let glb_bytes = match &mut glb {
-            Some(w) => Some(w.write(&frame).map_err(encode)?),
-            None => None,
-        };
-        if let Some(builder) = &mut animated
-            && picks.get(next_pick) == Some(&(i as usize))
-        {
-            builder.push(&frame).map_err(encode)?;
-            next_pick += 1;
         }
         sink.frame(FrameOutput {
             index: i,
@@ -504,6 +516,23 @@ fn render(
             delta,
         })
         .map_err(stored)?;
+        let published_ms = started.elapsed().as_secs_f64() * 1e3;
+        // Metrics and the animated GLB's keyframes wait until the frame is
+        // out: clients see it sooner.
+        measure(&frame);
+        if let Some(builder) = &mut animated
+            && picks.get(next_pick) == Some(&(i as usize))
+        {
+            builder.push(&frame).map_err(encode)?;
+            next_pick += 1;
+        }
+        tracing::debug!(
+            frame = i,
+            eval_ms,
+            encoded_ms,
+            published_ms,
+            "frame published"
+        );
         sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
     }
 

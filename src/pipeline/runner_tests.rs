@@ -52,8 +52,10 @@ impl JobSink for MemorySink {
     }
 }
 
-fn tree(preset: Preset, seed: u64, size: u32) -> Arc<Tree> {
-    Arc::new(generate(&GenerateOptions::new(preset, seed).with_size(size)).unwrap())
+fn tree(preset: Preset, seed: u64, size: u32) -> Arc<InputTree> {
+    Arc::new(InputTree::new(
+        generate(&GenerateOptions::new(preset, seed).with_size(size)).unwrap(),
+    ))
 }
 
 fn morph_request(frames: u32, outputs: Outputs) -> JobRequest {
@@ -67,7 +69,7 @@ fn morph_request(frames: u32, outputs: Outputs) -> JobRequest {
     })
 }
 
-fn morph_trees() -> HashMap<String, Arc<Tree>> {
+fn morph_trees() -> HashMap<String, Arc<InputTree>> {
     HashMap::from([
         ("a".to_owned(), tree(Preset::Eucalyptus, 1, 300)),
         ("b".to_owned(), tree(Preset::Shrub, 2, 300)),
@@ -76,7 +78,7 @@ fn morph_trees() -> HashMap<String, Arc<Tree>> {
 
 fn run(
     request: &JobRequest,
-    trees: &HashMap<String, Arc<Tree>>,
+    trees: &HashMap<String, Arc<InputTree>>,
     sink: &mut MemorySink,
 ) -> Result<JobOutcome, JobError> {
     PipelineRunner::default().run(&JobInput { request, trees }, sink)
@@ -309,4 +311,23 @@ fn the_animation_encoding_is_honoured() {
         sizes.push(glb.len());
     }
     assert!(sizes[1] < sizes[0], "{sizes:?}");
+}
+
+#[test]
+fn an_input_tree_analyses_once_and_keeps_the_result() {
+    let input = tree(Preset::Shrub, 1, 100);
+    assert!(!input.is_analysed());
+    let first: *const Analysis = input.analysis().unwrap();
+    assert!(input.is_analysed());
+    let again: *const Analysis = input.analysis().unwrap();
+    assert_eq!(first, again, "computed twice");
+    let fresh = Analysis::of(
+        input.tree(),
+        &treemorph_analysis::AnalysisOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(*input.analysis().unwrap(), fresh);
+    let given = InputTree::with_analysis(input.tree().clone(), fresh.clone());
+    assert!(given.is_analysed());
+    assert_eq!(*given.analysis().unwrap(), fresh);
 }

@@ -55,6 +55,7 @@ use utoipa_axum::router::OpenApiRouter;
 
 use crate::config::Settings;
 use crate::error::{ApiError, code_for_status};
+use crate::jobs::tree_cache::TreeCache;
 use crate::jobs::{Hub, Services};
 use crate::pipeline::Runner;
 use crate::store::{Blobs, Db};
@@ -127,8 +128,17 @@ impl AppState {
             .collect();
         let limiter = RateLimiter::new(settings.rate_limit, settings.rate_burst);
         let (tx, rx) = watch::channel(false);
+        // Only processes that run jobs read the cache; an API process
+        // would fill it on every upload for nothing.
+        let cache_bytes = if settings.role.runs_workers() {
+            settings.tree_cache_mb.saturating_mul(1 << 20)
+        } else {
+            0
+        };
+        let trees = TreeCache::new(cache_bytes);
         Ok(AppState {
             services: Services {
+                trees: Arc::new(trees),
                 settings: Arc::new(settings),
                 db,
                 blobs,

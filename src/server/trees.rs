@@ -9,6 +9,7 @@
 //! full analysis JSON and our GLB export (served with an ETag).
 
 use std::path::Path as FsPath;
+use std::sync::Arc;
 
 use axum::Json;
 use axum::body::Body;
@@ -32,6 +33,7 @@ use super::extract::{
 use super::{AppState, Owner, blob};
 use crate::error::ApiError;
 use crate::files::{LoadError, TreeFileKind, tree_of_kind};
+use crate::pipeline::InputTree;
 use crate::store::trees::{DeleteTree, TreeRow, blob_prefix};
 use crate::store::{new_id, now_ms};
 use treemorph_import::ImportError;
@@ -140,6 +142,8 @@ impl ToSchema for GltfDocument {}
 
 /// Everything derived from an input tree, ready to store.
 struct Prepared {
+    /// The parsed tree and its analysis, for the tree cache.
+    input: Arc<InputTree>,
     original: Vec<u8>,
     tree_json: Vec<u8>,
     analysis_json: Vec<u8>,
@@ -147,8 +151,8 @@ struct Prepared {
     stats: TreeStats,
 }
 
-fn prepare(tree: &Tree, original: Vec<u8>) -> Result<Prepared, ApiError> {
-    let analysis = Analysis::of(tree, &AnalysisOptions::default()).map_err(|e| {
+fn prepare(tree: Tree, original: Vec<u8>) -> Result<Prepared, ApiError> {
+    let analysis = Analysis::of(&tree, &AnalysisOptions::default()).map_err(|e| {
         ApiError::new(
             ErrorCode::InvalidTree,
             format!("cannot analyse the tree: {e}"),
@@ -156,12 +160,17 @@ fn prepare(tree: &Tree, original: Vec<u8>) -> Result<Prepared, ApiError> {
     })?;
     let summary = analysis.summary();
     let tree_stats = tree.stats();
-    let glb = treemorph_gltf::export_glb(tree, &treemorph_gltf::ExportOptions::default())
+    let glb = treemorph_gltf::export_glb(&tree, &treemorph_gltf::ExportOptions::default())
         .map_err(|e| ApiError::internal(format!("GLB export failed: {e}")))?;
+    // The stored JSON reads back bit-exactly (a tested property of the
+    // format), so the tree cached here is the tree a worker would load.
+    let tree_json = treemorph_tree::json::to_vec(&tree);
+    let analysis_json = analysis.to_json();
     Ok(Prepared {
+        input: Arc::new(InputTree::with_analysis(tree, analysis)),
         original,
-        tree_json: treemorph_tree::json::to_vec(tree),
-        analysis_json: analysis.to_json(),
+        tree_json,
+        analysis_json,
         glb,
         stats: TreeStats {
             branches: tree_stats.branches as u32,
@@ -188,18 +197,18 @@ async fn store(
     let id = new_id();
     let prefix = blob_prefix(&id);
     let blobs = &state.services.blobs;
-    blobs
-        .put(&format!("{prefix}/original"), prepared.original)
-        .await?;
-    blobs
-        .put(&format!("{prefix}/tree.json"), prepared.tree_json)
-        .await?;
-    blobs
-        .put(&format!("{prefix}/analysis.json"), prepared.analysis_json)
-        .await?;
-    blobs
-        .put(&format!("{prefix}/model.glb"), prepared.glb)
-        .await?;
+    let json_bytes = prepared.tree_json.len() as u64;
+    // Four files written side by side, then made durable together before
+    // the row that acknowledges the upload is committed.
+    let keys =
+        ["original", "tree.json", "analysis.json", "model.glb"].map(|f| format!("{prefix}/{f}"));
+    futures_util::try_join!(
+        blobs.put_deferred(&keys[0], prepared.original),
+        blobs.put_deferred(&keys[1], prepared.tree_json),
+        blobs.put_deferred(&keys[2], prepared.analysis_json),
+        blobs.put_deferred(&keys[3], prepared.glb),
+    )?;
+    blobs.sync(keys.to_vec()).await?;
     let row = TreeRow {
         id: id.clone(),
         owner: owner.0.clone(),
@@ -209,6 +218,7 @@ async fn store(
         created_at: now_ms(),
     };
     state.services.db.insert_tree(&row).await?;
+    state.services.trees.insert(&id, prepared.input, json_bytes);
     Ok((
         StatusCode::CREATED,
         [(header::LOCATION, format!("/v1/trees/{id}"))],
@@ -299,7 +309,7 @@ pub async fn post(
                 ),
             ));
         }
-        prepare(&tree, bytes)
+        prepare(tree, bytes)
     })
     .await
     .map_err(ApiError::internal)??;
@@ -452,7 +462,7 @@ pub async fn generate(
         let tree =
             treemorph_generate::generate(&options).map_err(|e| ApiError::invalid(e.to_string()))?;
         let json = treemorph_tree::json::to_vec(&tree);
-        prepare(&tree, json)
+        prepare(tree, json)
     })
     .await
     .map_err(ApiError::internal)??;
@@ -667,6 +677,7 @@ pub async fn delete(
     path_id(&id, "tree")?;
     match state.services.db.delete_tree(&owner.0, &id).await? {
         DeleteTree::Deleted => {
+            state.services.trees.remove(&id);
             if let Err(e) = state.services.blobs.delete_prefix(&blob_prefix(&id)).await {
                 tracing::warn!(tree = %id, error = %e, "deleting a tree's blobs failed");
             }

@@ -3,9 +3,20 @@
 //! environment variables).
 //!
 //! Puts are atomic: the local store writes a staging file and renames it
-//! into place (with fsync of the file and its directory, so a blob named
-//! by a committed row survives power loss); on S3 every blob is one
-//! `PutObject`, which becomes visible whole or not at all. We never use
+//! into place; on S3 every blob is one `PutObject`, which becomes visible
+//! whole or not at all.
+//!
+//! Durability on the local store comes in two forms. [`Blobs::put`]
+//! fsyncs the file and its directory before it returns, like an S3 PUT.
+//! [`Blobs::put_deferred`] returns once the rename is done (safe against a
+//! killed process, not yet against power loss) and [`Blobs::sync`] makes a
+//! batch of such blobs durable later. Jobs publish their frames with
+//! deferred puts and sync them all before the commit that ends the attempt:
+//! a 40 MB frame GLB fsynced on the way out took as long as meshing it, and
+//! one job's fsyncs queued behind another's. The window this opens is
+//! power loss during a running attempt, whose frames may then read back
+//! short; that attempt is rerun under a new token once its lease expires,
+//! and its outputs are never served again. We never use
 //! multipart uploads (whose parts are invisible until the completing call,
 //! but which leave orphaned parts behind a crash and need a lifecycle rule
 //! to clean up): our largest outputs are tens of megabytes, far below the
@@ -29,6 +40,7 @@ use bytes::Bytes;
 use futures_util::StreamExt;
 use futures_util::stream::BoxStream;
 use object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
+use object_store::local::LocalFileSystem;
 use object_store::path::Path;
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
 
@@ -40,7 +52,13 @@ pub struct BlobError(#[from] pub object_store::Error);
 /// The blob store.
 #[derive(Clone, Debug)]
 pub struct Blobs {
+    /// Puts return when the blob is durable.
     store: Arc<dyn ObjectStore>,
+    /// Puts return when the blob is visible (the same store on S3).
+    deferred: Arc<dyn ObjectStore>,
+    /// The local store without fsync (`None` on S3), for [`Blobs::sync`]
+    /// to find a key's file, and its directory.
+    local: Option<(Arc<LocalFileSystem>, std::path::PathBuf)>,
 }
 
 impl Blobs {
@@ -49,17 +67,25 @@ impl Blobs {
     pub fn open(url: &str) -> anyhow::Result<Blobs> {
         let parsed =
             url::Url::parse(url).map_err(|e| anyhow::anyhow!("invalid blob URL {url:?}: {e}"))?;
-        let store: Arc<dyn ObjectStore> = match parsed.scheme() {
+        match parsed.scheme() {
             "file" => {
                 let dir = parsed
                     .to_file_path()
                     .map_err(|()| anyhow::anyhow!("invalid file URL {url:?}"))?;
                 std::fs::create_dir_all(&dir)?;
-                Arc::new(
-                    object_store::local::LocalFileSystem::new_with_prefix(&dir)?
-                        .with_fsync(true)
-                        .with_automatic_cleanup(true),
-                )
+                let local = |fsync: bool| -> anyhow::Result<Arc<LocalFileSystem>> {
+                    Ok(Arc::new(
+                        LocalFileSystem::new_with_prefix(&dir)?
+                            .with_fsync(fsync)
+                            .with_automatic_cleanup(true),
+                    ))
+                };
+                let deferred = local(false)?;
+                Ok(Blobs {
+                    store: local(true)?,
+                    deferred: deferred.clone(),
+                    local: Some((deferred, std::fs::canonicalize(&dir)?)),
+                })
             }
             "s3" => {
                 let bucket = parsed
@@ -67,15 +93,19 @@ impl Blobs {
                     .ok_or_else(|| anyhow::anyhow!("s3 URL {url:?} names no bucket"))?;
                 let s3 = s3_builder(bucket, std::env::vars()).build()?;
                 let prefix = parsed.path().trim_matches('/');
-                if prefix.is_empty() {
+                let store: Arc<dyn ObjectStore> = if prefix.is_empty() {
                     Arc::new(s3)
                 } else {
                     Arc::new(object_store::prefix::PrefixStore::new(s3, prefix))
-                }
+                };
+                Ok(Blobs {
+                    deferred: store.clone(),
+                    store,
+                    local: None,
+                })
             }
             other => anyhow::bail!("unsupported blob store scheme {other:?}: use file:// or s3://"),
-        };
-        Ok(Blobs { store })
+        }
     }
 
     /// A store in a local directory.
@@ -87,12 +117,88 @@ impl Blobs {
         Blobs::open(url.as_str())
     }
 
-    /// Writes a blob atomically.
+    /// Writes a blob atomically and durably.
     pub async fn put(&self, key: &str, bytes: impl Into<Bytes>) -> Result<(), BlobError> {
         self.store
             .put(&Path::from(key), PutPayload::from(bytes.into()))
             .await?;
         Ok(())
+    }
+
+    /// Writes a blob atomically; it is durable after [`Blobs::sync`] (at
+    /// once on S3).
+    pub async fn put_deferred(&self, key: &str, bytes: impl Into<Bytes>) -> Result<(), BlobError> {
+        self.deferred
+            .put(&Path::from(key), PutPayload::from(bytes.into()))
+            .await?;
+        Ok(())
+    }
+
+    /// [`Blobs::put_deferred`] for a job thread (never a runtime thread):
+    /// on the local store the file is written on the calling thread, so the
+    /// copy of a 40 MB frame into the page cache runs at the job thread's
+    /// lowered priority (see [`crate::jobs::priority`]) instead of on the
+    /// runtime's blocking pool at full priority, where it delayed API
+    /// requests by tens of milliseconds. object_store's local store does
+    /// its file work inline when no runtime is entered, so one poll
+    /// finishes it; S3 puts go through `rt`.
+    pub fn put_deferred_here(
+        &self,
+        rt: &tokio::runtime::Handle,
+        key: &str,
+        bytes: impl Into<Bytes>,
+    ) -> Result<(), BlobError> {
+        let path = Path::from(key);
+        let payload = PutPayload::from(bytes.into());
+        let mut put = std::pin::pin!(self.deferred.put(&path, payload));
+        if self.local.is_some() && tokio::runtime::Handle::try_current().is_err() {
+            let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+            if let std::task::Poll::Ready(r) = put.as_mut().poll(&mut cx) {
+                return r.map(drop).map_err(BlobError);
+            }
+        }
+        rt.block_on(put).map(drop).map_err(BlobError)
+    }
+
+    /// Makes blobs written with [`Blobs::put_deferred`] durable: fsyncs
+    /// each file, then each directory holding them (the renames). A no-op
+    /// on S3. object_store offers no flush of earlier puts, so this is
+    /// written here, with object_store's own mapping of keys to files.
+    pub async fn sync(&self, keys: Vec<String>) -> Result<(), BlobError> {
+        let Some(paths) = self.local_paths(&keys)? else {
+            return Ok(());
+        };
+        let synced = tokio::task::spawn_blocking(move || sync_paths(&paths)).await;
+        synced
+            .unwrap_or_else(|e| Err(std::io::Error::other(e)))
+            .map_err(sync_error)
+    }
+
+    /// [`Blobs::sync`] on the calling thread (a job thread).
+    pub fn sync_here(&self, keys: &[String]) -> Result<(), BlobError> {
+        match self.local_paths(keys)? {
+            Some(paths) => sync_paths(&paths).map_err(sync_error),
+            None => Ok(()),
+        }
+    }
+
+    /// The files of `keys` and the store's root (`None` on S3 or when there
+    /// is nothing to do).
+    fn local_paths(
+        &self,
+        keys: &[String],
+    ) -> Result<Option<(Vec<std::path::PathBuf>, std::path::PathBuf)>, BlobError> {
+        let Some((local, root)) = &self.local else {
+            return Ok(None);
+        };
+        if keys.is_empty() {
+            return Ok(None);
+        }
+        let paths = keys
+            .iter()
+            .map(|k| local.path_to_filesystem(&Path::from(k.as_str())))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Some((paths, root.clone())))
     }
 
     /// Reads a whole blob; `None` when it does not exist.
@@ -164,6 +270,35 @@ impl Blobs {
     }
 }
 
+/// Fsyncs each file, then each directory from theirs up to `root` (new
+/// directories' entries live in their parents).
+fn sync_paths(
+    (paths, root): &(Vec<std::path::PathBuf>, std::path::PathBuf),
+) -> std::io::Result<()> {
+    let mut dirs = std::collections::BTreeSet::new();
+    for path in paths {
+        std::fs::File::open(path)?.sync_all()?;
+        let mut dir = path.parent();
+        while let Some(d) = dir
+            && d.starts_with(root)
+            && dirs.insert(d.to_owned())
+        {
+            dir = d.parent();
+        }
+    }
+    for dir in dirs {
+        std::fs::File::open(&dir)?.sync_all()?;
+    }
+    Ok(())
+}
+
+fn sync_error(source: std::io::Error) -> BlobError {
+    BlobError(object_store::Error::Generic {
+        store: "LocalFileSystem",
+        source: Box::new(source),
+    })
+}
+
 /// An S3 builder for `bucket` configured from the `AWS_*` variables among
 /// `env` (see the module docs).
 fn s3_builder(bucket: &str, env: impl IntoIterator<Item = (String, String)>) -> AmazonS3Builder {
@@ -217,6 +352,54 @@ mod tests {
         assert_eq!(blobs.get("jobs/a/t1/x").await.unwrap(), None);
         assert!(blobs.get("jobs/a/t2/y").await.unwrap().is_some());
         blobs.ping().await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn deferred_puts_are_visible_at_once_and_sync_by_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let blobs = Blobs::local(dir.path()).unwrap();
+        // A key object_store escapes on disk.
+        let keys = [
+            "jobs/b/t1/frames/000000.glb",
+            "jobs/b/t1/files/odd name%.json",
+        ];
+        for key in keys {
+            blobs
+                .put_deferred(key, Bytes::from_static(b"frame"))
+                .await
+                .unwrap();
+            assert_eq!(blobs.get(key).await.unwrap().unwrap(), "frame");
+        }
+        blobs
+            .sync(keys.iter().map(|k| k.to_string()).collect())
+            .await
+            .unwrap();
+        blobs.sync(Vec::new()).await.unwrap();
+        // From a thread outside the runtime (a job thread): written there.
+        let (b, rt) = (blobs.clone(), tokio::runtime::Handle::current());
+        std::thread::spawn(move || {
+            b.put_deferred_here(&rt, "jobs/b/t1/frames/000002.glb", vec![7u8; 3])
+                .unwrap();
+            b.sync_here(&["jobs/b/t1/frames/000002.glb".to_owned()])
+                .unwrap();
+        })
+        .join()
+        .unwrap();
+        assert_eq!(
+            blobs
+                .get("jobs/b/t1/frames/000002.glb")
+                .await
+                .unwrap()
+                .unwrap(),
+            vec![7u8; 3]
+        );
+        // A blob that is not there cannot be made durable: an error, never
+        // a silent success.
+        let err = blobs
+            .sync(vec!["jobs/b/t1/frames/000001.glb".into()])
+            .await
+            .unwrap_err();
+        assert!(err.to_string().contains("No such file"), "{err}");
     }
 
     #[test]

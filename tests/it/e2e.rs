@@ -31,13 +31,7 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
         .as_str()
         .unwrap()
         .to_owned();
-    let (s, job) = app.morph(&a, &b, 10).await;
-    assert_eq!(s, 202, "{job}");
-    let id = job["id"].as_str().unwrap().to_owned();
-    let done = app
-        .wait_job(&id, |j| j["status"] != "queued" && j["status"] != "running")
-        .await;
-    assert_eq!(done["status"], "succeeded", "{done}");
+    let (id, done) = morph_to_end(&app, &a, &b, 10).await;
     assert_eq!(done["result"]["frames"], 10, "{done}");
     assert_eq!(done["result"]["metrics"]["floating_branches"], 0, "{done}");
     assert_eq!(done["result"]["metrics"]["floating_leaves"], 0, "{done}");
@@ -92,4 +86,95 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
     );
     assert_eq!(done["result"]["metrics"]["floating_leaves"], 0, "{done}");
     app.stop().await;
+}
+
+/// Posts a morph of `a` into `b` and waits until it succeeded; returns
+/// its id and its final document.
+async fn morph_to_end(
+    app: &crate::common::TestApp,
+    a: &str,
+    b: &str,
+    frames: u32,
+) -> (String, serde_json::Value) {
+    let (s, job) = app.morph(a, b, frames).await;
+    assert_eq!(s, 202, "{job}");
+    let id = job["id"].as_str().unwrap().to_owned();
+    let done = app
+        .wait_job(&id, |j| j["status"] != "queued" && j["status"] != "running")
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    (id, done)
+}
+
+/// Posts a morph of `a` into `b`, waits for it and returns its stream.
+async fn morph_stream(app: &crate::common::TestApp, a: &str, b: &str) -> Vec<u8> {
+    let (id, _) = morph_to_end(app, a, b, 5).await;
+    let stream = app.get(&format!("/v1/jobs/{id}/stream")).await;
+    assert_eq!(stream.status(), 200);
+    stream.bytes().await.unwrap().to_vec()
+}
+
+/// The tree cache is invisible in the results: a job on trees the upload
+/// left in the cache and the same job in a process that loads them from
+/// the blob store give the same bytes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cached_and_loaded_trees_give_the_same_animation() {
+    // One data directory for both processes, owned here so that stopping
+    // the first server keeps it.
+    let data = tempfile::tempdir().unwrap();
+    let dir = data.path().to_owned();
+    let first = spawn_with(treemorph::pipeline::default_runner(), {
+        let dir = dir.clone();
+        move |s: &mut Settings| {
+            s.workers = Some(1);
+            s.data_dir = dir;
+        }
+    })
+    .await;
+    let mut ids = Vec::new();
+    for (preset, seed) in [("maple", 3), ("shrub", 4), ("conifer", 5)] {
+        let (s, body) = first
+            .post_json(
+                "/v1/trees/generate",
+                &json!({"preset": preset, "seed": seed, "size": 300}),
+            )
+            .await;
+        assert_eq!(s, 201, "{body}");
+        ids.push(body["id"].as_str().unwrap().to_owned());
+    }
+    let (a, b, spare) = (&ids[0], &ids[1], &ids[2]);
+    // The upload seeded the cache with the tree and its analysis.
+    let trees = &first.state.services.trees;
+    assert!(trees.get(a).is_some_and(|t| t.is_analysed()));
+
+    let from_cache = morph_stream(&first, a, b).await;
+    let metrics = first.get("/metrics").await.text().await.unwrap();
+    assert!(
+        metrics.contains("treemorph_tree_cache_lookups_total{result=\"hit\"} 2"),
+        "{metrics}"
+    );
+    // Deleting a tree drops it from the cache.
+    assert!(trees.get(spare).is_some());
+    let (s, _) = first.delete(&format!("/v1/trees/{spare}")).await;
+    assert_eq!(s, 204);
+    assert!(trees.get(spare).is_none());
+    first.stop().await;
+
+    // A second process on the same database and blobs, with no cache.
+    let second = spawn_with(treemorph::pipeline::default_runner(), move |s| {
+        s.workers = Some(1);
+        s.data_dir = dir;
+        s.tree_cache_mb = 0;
+    })
+    .await;
+    let from_blobs = morph_stream(&second, a, b).await;
+    assert_eq!(from_cache.len(), from_blobs.len());
+    assert!(from_cache == from_blobs, "the animations differ");
+    let metrics = second.get("/metrics").await.text().await.unwrap();
+    assert!(
+        metrics.contains("treemorph_tree_cache_lookups_total{result=\"miss\"} 2"),
+        "{metrics}"
+    );
+    second.stop().await;
+    drop(data);
 }

@@ -8,6 +8,8 @@
 //! published before frame 0, so clients start playing at once), the
 //! per-frame GLB, the animated GLB's keyframes and the metrics.
 
+use std::time::Instant;
+
 use serde_json::{Value, json};
 use treemorph_analysis::Analysis;
 use treemorph_api::ErrorCode;
@@ -39,6 +41,11 @@ const PROBES: [f32; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
 /// Runs morph and sketch jobs.
 #[derive(Debug, Default)]
 pub struct PipelineRunner {}
+
+/// Milliseconds since `started`, for the debug timings of a job's stages.
+fn ms_since(started: Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
+}
 
 fn invalid(code: ErrorCode, message: impl Into<String>) -> JobError {
     JobError {
@@ -223,10 +230,10 @@ fn run_morph(
         return Err(cancelled());
     }
     sink.stage(stage::PLANNING, 0.08);
-    let started = std::time::Instant::now();
+    let started = Instant::now();
     let plan = MorphPlan::new(source, a, target, b, &options)
         .map_err(|e| invalid(ErrorCode::IncompatibleTrees, e.to_string()))?;
-    tracing::debug!(ms = started.elapsed().as_secs_f64() * 1e3, "morph planned");
+    tracing::debug!(ms = ms_since(started), "morph planned");
     let mut morpher = Morpher::new(&plan);
     let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
     let n = request.frames as usize;
@@ -422,7 +429,7 @@ fn render(
     };
     // Side counts and the quantisation grid must hold for the whole
     // sequence, so they come from a few probes before the first frame.
-    let started = std::time::Instant::now();
+    let started = Instant::now();
     let mut probes = Vec::with_capacity(PROBES.len());
     for &t in &PROBES {
         eval(t, &mut frame);
@@ -434,7 +441,7 @@ fn render(
         .map(frame_bounds)
         .fold(Aabb::EMPTY, Aabb::union);
     drop(probes);
-    tracing::debug!(ms = started.elapsed().as_secs_f64() * 1e3, "probes sampled");
+    tracing::debug!(ms = ms_since(started), "probes sampled");
 
     let mut stream = if outputs.delta {
         let options = StreamOptions::default().with_frame_count(frames);
@@ -473,9 +480,9 @@ fn render(
             return Err(cancelled());
         }
         let t = time(i);
-        let started = std::time::Instant::now();
+        let started = Instant::now();
         eval(t, &mut frame);
-        let eval_ms = started.elapsed().as_secs_f64() * 1e3;
+        let eval_ms = ms_since(started);
         // The stream record and the GLB are independent encodings of the
         // same frame, so they are made side by side: on an idle core this
         // halves the time to publish a frame (the first frame's record
@@ -496,7 +503,7 @@ fn render(
             || glb.as_mut().map(|w| w.write(&frame)).transpose(),
         );
         let (header, glb_bytes) = (header.map_err(encode)?, glb_bytes.map_err(encode)?);
-        let encoded_ms = started.elapsed().as_secs_f64() * 1e3;
+        let encoded_ms = ms_since(started);
         let mut delta = Vec::new();
         if let Some(header) = header {
             if i == 0 {
@@ -516,7 +523,7 @@ fn render(
             delta,
         })
         .map_err(stored)?;
-        let published_ms = started.elapsed().as_secs_f64() * 1e3;
+        let published_ms = ms_since(started);
         // Metrics and the animated GLB's keyframes wait until the frame is
         // out: clients see it sooner.
         measure(&frame);

@@ -6,11 +6,11 @@
 //! into place; on S3 every blob is one `PutObject`, which becomes visible
 //! whole or not at all.
 //!
-//! Durability on the local store comes in two forms. [`Blobs::put`]
-//! fsyncs the file and its directory before it returns, like an S3 PUT.
+//! Durability on the local store comes in two steps:
 //! [`Blobs::put_deferred`] returns once the rename is done (safe against a
 //! killed process, not yet against power loss) and [`Blobs::sync`] makes a
-//! batch of such blobs durable later. Jobs publish their frames with
+//! batch of such blobs durable later. [`Blobs::put`] is both at once, like
+//! an S3 PUT. Jobs publish their frames with
 //! deferred puts and sync them all before the commit that ends the attempt:
 //! a 40 MB frame GLB fsynced on the way out took as long as meshing it, and
 //! one job's fsyncs queued behind another's. The window this opens is
@@ -52,12 +52,11 @@ pub struct BlobError(#[from] pub object_store::Error);
 /// The blob store.
 #[derive(Clone, Debug)]
 pub struct Blobs {
-    /// Puts return when the blob is durable.
+    /// Puts return when the blob is visible; on the local store, durable
+    /// after [`Blobs::sync`].
     store: Arc<dyn ObjectStore>,
-    /// Puts return when the blob is visible (the same store on S3).
-    deferred: Arc<dyn ObjectStore>,
-    /// The local store without fsync (`None` on S3), for [`Blobs::sync`]
-    /// to find a key's file, and its directory.
+    /// The same local store (`None` on S3), for [`Blobs::sync`] to find a
+    /// key's file, and its directory.
     local: Option<(Arc<LocalFileSystem>, std::path::PathBuf)>,
 }
 
@@ -73,18 +72,11 @@ impl Blobs {
                     .to_file_path()
                     .map_err(|()| anyhow::anyhow!("invalid file URL {url:?}"))?;
                 std::fs::create_dir_all(&dir)?;
-                let local = |fsync: bool| -> anyhow::Result<Arc<LocalFileSystem>> {
-                    Ok(Arc::new(
-                        LocalFileSystem::new_with_prefix(&dir)?
-                            .with_fsync(fsync)
-                            .with_automatic_cleanup(true),
-                    ))
-                };
-                let deferred = local(false)?;
+                let local =
+                    Arc::new(LocalFileSystem::new_with_prefix(&dir)?.with_automatic_cleanup(true));
                 Ok(Blobs {
-                    store: local(true)?,
-                    deferred: deferred.clone(),
-                    local: Some((deferred, std::fs::canonicalize(&dir)?)),
+                    store: local.clone(),
+                    local: Some((local, std::fs::canonicalize(&dir)?)),
                 })
             }
             "s3" => {
@@ -98,11 +90,7 @@ impl Blobs {
                 } else {
                     Arc::new(object_store::prefix::PrefixStore::new(s3, prefix))
                 };
-                Ok(Blobs {
-                    deferred: store.clone(),
-                    store,
-                    local: None,
-                })
+                Ok(Blobs { store, local: None })
             }
             other => anyhow::bail!("unsupported blob store scheme {other:?}: use file:// or s3://"),
         }
@@ -119,16 +107,14 @@ impl Blobs {
 
     /// Writes a blob atomically and durably.
     pub async fn put(&self, key: &str, bytes: impl Into<Bytes>) -> Result<(), BlobError> {
-        self.store
-            .put(&Path::from(key), PutPayload::from(bytes.into()))
-            .await?;
-        Ok(())
+        self.put_deferred(key, bytes).await?;
+        self.sync(vec![key.to_owned()]).await
     }
 
     /// Writes a blob atomically; it is durable after [`Blobs::sync`] (at
     /// once on S3).
     pub async fn put_deferred(&self, key: &str, bytes: impl Into<Bytes>) -> Result<(), BlobError> {
-        self.deferred
+        self.store
             .put(&Path::from(key), PutPayload::from(bytes.into()))
             .await?;
         Ok(())
@@ -150,7 +136,7 @@ impl Blobs {
     ) -> Result<(), BlobError> {
         let path = Path::from(key);
         let payload = PutPayload::from(bytes.into());
-        let mut put = std::pin::pin!(self.deferred.put(&path, payload));
+        let mut put = std::pin::pin!(self.store.put(&path, payload));
         if self.local.is_some() && tokio::runtime::Handle::try_current().is_err() {
             let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
             if let std::task::Poll::Ready(r) = put.as_mut().poll(&mut cx) {

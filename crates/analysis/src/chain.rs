@@ -5,8 +5,8 @@ use glam::{Mat3, Quat, Vec3};
 use serde::Serialize;
 use treemorph_tree::{NodeId, Skeleton};
 
-use crate::lobe::Lobe;
 use crate::options::AnalysisOptions;
+use crate::shape::Lobe;
 
 /// Index of a chain in [`crate::Analysis::chains`].
 pub type ChainId = u32;

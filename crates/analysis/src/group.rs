@@ -7,8 +7,8 @@ use serde::Serialize;
 use treemorph_tree::{BranchingPattern, Skeleton};
 
 use crate::chain::{Chain, ChainId, Ordering, tangent};
-use crate::lobe::Lobe;
 use crate::options::AnalysisOptions;
+use crate::shape::Lobe;
 
 /// Index of a chain group (BPTT node) in [`crate::Analysis::groups`].
 /// Groups are numbered breadth-first through the BPTT, so the root group is

@@ -101,6 +101,7 @@ pub mod hull;
 mod leaf;
 mod lobe;
 mod options;
+mod shape;
 mod summary;
 
 use std::ops::Range;
@@ -110,8 +111,8 @@ pub use error::AnalysisError;
 pub use group::{ChainGroup, GroupId};
 pub use hull::{Hull, HullKind};
 pub use leaf::LeafPlacement;
-pub use lobe::{Lobe, LobeClustering};
-pub use options::AnalysisOptions;
+pub use options::{AnalysisOptions, LobeClustering};
+pub use shape::Lobe;
 pub use summary::{AnalysisExport, AnalysisSummary, LobeCounts, OrderSummary, PatternCounts};
 use treemorph_tree::{NodeId, Tree};
 

@@ -7,35 +7,13 @@ use std::ops::Range;
 
 use glam::{IVec3, Quat, Vec3};
 use rayon::prelude::*;
-use serde::Serialize;
 use treemorph_tree::{Leaf, NodeId, Skeleton, Tree};
 
 use crate::chain::{Chain, ChainId};
 use crate::group::{ChainGroup, GroupId};
 use crate::hull::{Hull, HullKind, RadialTemplate};
 use crate::options::AnalysisOptions;
-
-/// A leaf cluster and its closed shape.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Lobe {
-    /// Leaf indices (into [`Tree::leaves`]), ascending.
-    pub leaves: Vec<u32>,
-    /// Closed shape around the leaves' blade points; empty when `leaves` is.
-    pub hull: Hull,
-    /// Centroid of the leaves' blade points (for an empty lobe: the chain's
-    /// tip, or the mean tip of a group's chains), metres.
-    pub center: Vec3,
-    /// Largest distance from `center` to a hull vertex (0 when empty),
-    /// metres.
-    pub radius: f32,
-}
-
-impl Lobe {
-    /// Whether the lobe holds no leaves.
-    pub fn is_empty(&self) -> bool {
-        self.leaves.is_empty()
-    }
-}
+use crate::shape::Lobe;
 
 /// Points of a leaf that lobes enclose: the anchor and the blade tip, so
 /// lobes cover the foliage's extent, not just where it attaches. (Adding
@@ -184,31 +162,6 @@ fn threshold_kmeans(
     assign
 }
 
-/// How leaves are assigned to inner lobes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-#[non_exhaustive]
-pub enum LobeClustering {
-    /// The default. A leaf's IL is the chain holding the skeleton branch
-    /// nearest to its anchor (exact point-to-segment distance; a uniform
-    /// grid keeps it fast). This is the paper's top-down threshold
-    /// clustering with the distance to a cluster measured to the cluster's
-    /// *skeleton* (chain `n` for a tip cluster, the child group's
-    /// substructure for a crown cluster) instead of to its centre: the
-    /// cluster owning the nearest branch is the nearest cluster, and it is
-    /// within its first threshold for every leaf that sits on the bark, so
-    /// the recursion reduces to this assignment. Only geometry is used (not
-    /// [`Leaf::branch`]), so imported leaves that float near their twigs are
-    /// handled the same way.
-    #[default]
-    NearestBranch,
-    /// The paper's §4.2 clustering taken literally: distances to cluster
-    /// centres (child-group crown centres and chain tips). On the
-    /// generator's trees it puts only 10–75 % of the leaves in the IL of the
-    /// chain they grow on, because the large crowns of child groups capture
-    /// the leaves along their parent chain.
-    CentreKMeans,
-}
-
 /// A multiplicative hasher for grid cells (SipHash dominated the search).
 #[derive(Default)]
 struct CellHasher(u64);
@@ -233,7 +186,8 @@ impl Hasher for CellHasher {
     }
 }
 
-/// Each leaf's IL chain by [`LobeClustering::NearestBranch`].
+/// Each leaf's IL chain by
+/// [`LobeClustering::NearestBranch`](crate::LobeClustering::NearestBranch).
 pub(crate) fn nearest_branch(
     anchors: &[Vec3],
     hints: &[NodeId],
@@ -324,7 +278,8 @@ pub(crate) fn nearest_branch(
 }
 
 /// Top-down through the BPTT (§4.2 steps 1–3) with centre distances
-/// ([`LobeClustering::CentreKMeans`]): returns each leaf's IL chain.
+/// ([`LobeClustering::CentreKMeans`](crate::LobeClustering::CentreKMeans)):
+/// returns each leaf's IL chain.
 pub(crate) fn cluster(
     anchors: &[Vec3],
     chains: &[Chain],

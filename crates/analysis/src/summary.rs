@@ -9,7 +9,7 @@ use crate::chain::ChainId;
 use crate::group::GroupId;
 use crate::hull::Hull;
 use crate::leaf::LeafPlacement;
-use crate::lobe::Lobe;
+use crate::shape::Lobe;
 
 /// Counts of the analysis, as `treemorph inspect --analysis` and
 /// `GET /v1/trees/{id}/analysis` report them.

@@ -417,3 +417,14 @@ impl<'p> Morpher<'p> {
         }
     }
 }
+
+impl MorphPlan {
+    /// The in-between tree at `t` in a new frame (convenience; a
+    /// [`Morpher`] reuses its buffers).
+    pub fn frame(&self, t: f32) -> Frame {
+        let mut morpher = Morpher::new(self);
+        let mut frame = morpher.new_frame();
+        morpher.morph(t, &mut frame);
+        frame
+    }
+}

@@ -5,14 +5,10 @@ use std::ops::Range;
 
 use glam::{Quat, Vec3};
 use serde::Serialize;
-use treemorph_analysis::{Analysis, ChainId};
-use treemorph_tree::{Frame, FrameTopology, NodeId, Tree};
+use treemorph_analysis::ChainId;
+use treemorph_tree::{FrameTopology, NodeId};
 
-use crate::builder::build;
-use crate::correspondence::{Correspondence, Input, LeafMatch, Operation, correspond};
-use crate::error::{MorphError, Side};
-use crate::morpher::Morpher;
-use crate::options::MorphOptions;
+use crate::correspondence::{Correspondence, LeafMatch, Operation};
 
 /// Parent index of a root chain.
 pub(crate) const NO_PARENT: u32 = u32::MAX;
@@ -134,7 +130,7 @@ pub(crate) struct LeafPlan {
 /// Everything needed to produce the in-between tree at any t: the
 /// correspondence, the union topology, and per-sample and per-leaf data.
 /// Build it once with [`MorphPlan::new`], then play it with a
-/// [`Morpher`].
+/// [`Morpher`](crate::Morpher).
 #[derive(Clone, Debug)]
 pub struct MorphPlan {
     pub(crate) topology: FrameTopology,
@@ -160,98 +156,7 @@ pub struct MorphPlan {
     pub(crate) endpoint: EndpointError,
 }
 
-/// Height of a tree for normalisation: the stats height, else the largest
-/// extent, else 1 m.
-fn tree_height(tree: &Tree) -> f32 {
-    let stats = tree.stats();
-    if stats.height > 1e-6 && stats.height.is_finite() {
-        return stats.height;
-    }
-    let [lo, hi] = stats.bounds;
-    let extent = (0..3).map(|i| hi[i] - lo[i]).fold(0.0f32, f32::max);
-    if extent > 1e-6 && extent.is_finite() {
-        extent
-    } else {
-        1.0
-    }
-}
-
-/// Checks that `analysis` was made from `tree`.
-fn check_analysis(tree: &Tree, analysis: &Analysis, side: Side) -> Result<(), MorphError> {
-    let mismatch = |reason: String| MorphError::AnalysisMismatch { side, reason };
-    let skeleton = tree.skeleton();
-    if analysis.orders().len() != skeleton.len() {
-        return Err(mismatch(format!(
-            "{} node orders for {} nodes",
-            analysis.orders().len(),
-            skeleton.len()
-        )));
-    }
-    if analysis.leaves().len() != tree.leaves().len() {
-        return Err(mismatch(format!(
-            "{} leaf placements for {} leaves",
-            analysis.leaves().len(),
-            tree.leaves().len()
-        )));
-    }
-    if analysis.chains().is_empty() || analysis.groups().is_empty() {
-        return Err(mismatch("the analysis has no chains".into()));
-    }
-    let chains = analysis.chains().len() as ChainId;
-    for c in analysis.chains() {
-        if c.nodes.len() < 2
-            || c.points.len() != c.nodes.len()
-            || c.radii.len() != c.nodes.len()
-            || c.frames.len() != c.nodes.len()
-            || c.arc_lengths.len() != c.nodes.len()
-        {
-            return Err(mismatch(format!("chain {} is malformed", c.id)));
-        }
-        if c.parent.is_some_and(|p| p >= c.id) || c.children.iter().any(|&k| k >= chains) {
-            return Err(mismatch(format!(
-                "chain {} has a bad parent or child",
-                c.id
-            )));
-        }
-        for (&n, &p) in c.nodes.iter().zip(&c.points) {
-            if n as usize >= skeleton.len() || skeleton.node(n).position != p {
-                return Err(mismatch(format!(
-                    "chain {} names node {n}, which is not at {p}",
-                    c.id
-                )));
-            }
-        }
-    }
-    for (i, l) in analysis.leaves().iter().enumerate() {
-        if l.inner_lobe >= chains {
-            return Err(mismatch(format!("leaf {i} has no inner lobe chain")));
-        }
-    }
-    Ok(())
-}
-
 impl MorphPlan {
-    /// Matches `source` with `target` (§5) and builds the union topology and
-    /// interpolation data (§6). Each analysis must come from its tree.
-    pub fn new(
-        source: &Tree,
-        source_analysis: &Analysis,
-        target: &Tree,
-        target_analysis: &Analysis,
-        options: &MorphOptions,
-    ) -> Result<MorphPlan, MorphError> {
-        options.validate()?;
-        check_analysis(source, source_analysis, Side::Source)?;
-        check_analysis(target, target_analysis, Side::Target)?;
-        let heights = [tree_height(source), tree_height(target)];
-        let s = Input::new(source, source_analysis, heights[0]);
-        let t = Input::new(target, target_analysis, heights[1]);
-        let correspondence = correspond(&s, &t, options);
-        let mut plan = build(&s, &t, correspondence, options, heights)?;
-        plan.endpoint = plan.measure_endpoints(source, target);
-        Ok(plan)
-    }
-
     /// The union topology every frame shares.
     pub fn topology(&self) -> &FrameTopology {
         &self.topology
@@ -296,15 +201,6 @@ impl MorphPlan {
         self.endpoint
     }
 
-    /// The in-between tree at `t` in a new frame (convenience; a
-    /// [`Morpher`] reuses its buffers).
-    pub fn frame(&self, t: f32) -> Frame {
-        let mut morpher = Morpher::new(self);
-        let mut frame = morpher.new_frame();
-        morpher.morph(t, &mut frame);
-        frame
-    }
-
     pub(crate) fn root_at(&self, t: f32) -> Vec3 {
         self.root[0].lerp(self.root[1], t)
     }
@@ -313,52 +209,5 @@ impl MorphPlan {
     pub(crate) fn growth_at(&self, chain: usize, t: f32) -> f32 {
         let p = self.chain_plans[chain].p;
         p[0] + (p[1] - p[0]) * t
-    }
-
-    fn measure_endpoints(&self, source: &Tree, target: &Tree) -> EndpointError {
-        let mut morpher = Morpher::new(self);
-        let mut frame = Frame {
-            t: 0.0,
-            positions: Vec::new(),
-            radii: Vec::new(),
-            leaves: Vec::new(),
-            bark_blend: 0.0,
-        };
-        let mut junctions = vec![false; self.topology.node_count()];
-        for c in &self.chains {
-            junctions[c.nodes.start as usize] = true;
-        }
-        let mut errors = [0.0f32; 2];
-        for (side, tree) in [source, target].into_iter().enumerate() {
-            morpher.morph(side as f32, &mut frame);
-            let nodes = tree.skeleton();
-            let mut worst = 0.0f32;
-            for (i, o) in self.node_origins.iter().enumerate() {
-                let origin = if side == 0 { o.source } else { o.target };
-                if let Some(n) = origin {
-                    let node = nodes.node(n);
-                    worst = worst.max(frame.positions[i].distance(node.position));
-                    if !junctions[i] {
-                        worst = worst.max((frame.radii[i] - node.radius).abs());
-                    }
-                }
-            }
-            for (i, m) in self.correspondence.leaves.iter().enumerate() {
-                let origin = if side == 0 { m.source } else { m.target };
-                if let Some(l) = origin {
-                    let leaf = &tree.leaves()[l as usize];
-                    let f = &frame.leaves[i];
-                    worst = worst
-                        .max(f.anchor.distance(tree.leaf_anchor(leaf)))
-                        .max((f.width - leaf.width).abs())
-                        .max((f.height - leaf.height).abs());
-                }
-            }
-            errors[side] = worst / self.heights[side];
-        }
-        EndpointError {
-            source: errors[0],
-            target: errors[1],
-        }
     }
 }

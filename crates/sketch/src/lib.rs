@@ -209,6 +209,7 @@ mod polygon;
 mod prune;
 mod sketch;
 mod sketcher;
+mod time;
 mod view;
 
 pub use error::{SketchEnd, SketchError};

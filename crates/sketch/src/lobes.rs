@@ -18,12 +18,11 @@ use std::sync::OnceLock;
 
 use glam::{Vec2, Vec3};
 use treemorph_analysis::{Analysis, Hull};
+use treemorph_tree::geom::NONE;
 
 use crate::error::SketchError;
 use crate::laplacian::{COLS, LeastSquares, scratch_for};
-use crate::mct::{CageKind, Mct, NO_VERTEX};
-use crate::plan::NONE;
-use crate::sketcher::Sketcher;
+use crate::mct::{CageKind, Mct};
 use crate::view::Camera;
 
 /// The lobe meshes of every cage and, once built, their factorised system.
@@ -43,7 +42,7 @@ pub(crate) struct LobeSource {
 }
 
 #[derive(Debug)]
-struct LobeSystem {
+pub(crate) struct LobeSystem {
     ls: LeastSquares,
     /// The vertex each unknown is.
     unknowns: Vec<u32>,
@@ -76,7 +75,7 @@ impl LobeSource {
             s.triangles.extend_from_slice(&hull.triangles);
             s.constraint.resize(s.vertices.len(), NONE);
             for (k, &hv) in cage.hull_vertex.iter().enumerate() {
-                if hv != NO_VERTEX && (hv as usize) < hull.vertices.len() {
+                if hv != NONE && (hv as usize) < hull.vertices.len() {
                     s.constraint[base + hv as usize] = (cage.offset + k) as u32;
                 }
             }
@@ -86,7 +85,7 @@ impl LobeSource {
         s
     }
 
-    fn system(&self) -> Result<&LobeSystem, SketchError> {
+    pub(crate) fn system(&self) -> Result<&LobeSystem, SketchError> {
         self.system
             .get_or_init(|| self.build())
             .as_ref()
@@ -223,52 +222,50 @@ impl DeformedLobes<'_> {
     }
 }
 
-impl Sketcher<'_> {
-    /// The lobes of every cage at time `t`, deformed with their cages (see
-    /// the `lobes` module docs). The first call factorises the lobe system;
-    /// later calls only solve.
-    pub fn deform_lobes(&mut self, t: f32) -> Result<DeformedLobes<'_>, SketchError> {
-        let t = crate::plan::clamp_t(t);
-        let plan = self.plan;
-        let source = &plan.lobes;
-        let system = source.system()?;
-        plan.mct
-            .displacements(&plan.crown_delta, t, &mut self.cage_disp);
-        let buf = &mut self.lobes;
+impl LobeBuffers {
+    /// The lobes deformed by the cage displacements `cage_disp` (flat, per
+    /// cage vertex) with `system`, the factorised system of `source`.
+    pub(crate) fn deform<'a>(
+        &'a mut self,
+        source: &'a LobeSource,
+        system: &LobeSystem,
+        cage_disp: &[Vec2],
+        camera: &Camera,
+    ) -> DeformedLobes<'a> {
         let n = source.vertices.len();
-        buf.disp.clear();
-        buf.disp.resize(n, Vec2::ZERO);
+        self.disp.clear();
+        self.disp.resize(n, Vec2::ZERO);
         for v in 0..n {
             let c = source.constraint[v];
             if c != NONE {
-                buf.disp[v] = self.cage_disp[c as usize];
+                self.disp[v] = cage_disp[c as usize];
             }
         }
-        buf.b.clear();
-        buf.b.resize(system.ls.rows(), [0.0; COLS]);
+        self.b.clear();
+        self.b.resize(system.ls.rows(), [0.0; COLS]);
         for &(row, v, coef) in &system.rhs {
-            let d = buf.disp[v as usize];
-            let r = &mut buf.b[row as usize];
+            let d = self.disp[v as usize];
+            let r = &mut self.b[row as usize];
             r[0] += f64::from(coef * d.x);
             r[1] += f64::from(coef * d.y);
         }
-        let mem = buf.mem.get_or_insert_with(|| scratch_for([&system.ls]));
-        system.ls.solve(&buf.b, &mut buf.x, mem);
+        let mem = self.mem.get_or_insert_with(|| scratch_for([&system.ls]));
+        system.ls.solve(&self.b, &mut self.x, mem);
         for (k, &v) in system.unknowns.iter().enumerate() {
-            buf.disp[v as usize] = Vec2::new(buf.x[(k, 0)] as f32, buf.x[(k, 1)] as f32);
+            self.disp[v as usize] = Vec2::new(self.x[(k, 0)] as f32, self.x[(k, 1)] as f32);
         }
-        buf.positions.clear();
-        buf.positions.extend(
+        self.positions.clear();
+        self.positions.extend(
             source
                 .vertices
                 .iter()
-                .zip(&buf.disp)
+                .zip(&self.disp)
                 .zip(&source.depth)
-                .map(|((&p, &d), &z)| p + plan.camera.world_delta(d, z)),
+                .map(|((&p, &d), &z)| p + camera.world_delta(d, z)),
         );
-        Ok(DeformedLobes {
+        DeformedLobes {
             source,
-            positions: &self.lobes.positions,
-        })
+            positions: &self.positions,
+        }
     }
 }

@@ -40,14 +40,11 @@
 use glam::Vec2;
 use serde::Serialize;
 use treemorph_analysis::{Analysis, ChainId, GroupId, Hull};
+use treemorph_tree::geom::NONE;
 
 use crate::mvc;
-use crate::plan::NONE;
 use crate::polygon;
 use crate::view::Camera;
-
-/// `Cage::hull_vertex` of a crown sample that is no hull vertex.
-pub(crate) const NO_VERTEX: u32 = u32::MAX;
 
 /// What a cage is the silhouette of.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
@@ -73,7 +70,7 @@ pub struct Cage {
     pub(crate) children: Vec<u32>,
     /// Rest polygon, NDC, CCW.
     pub(crate) rest: Vec<Vec2>,
-    /// The lobe hull vertex under each cage vertex (`u32::MAX` for the
+    /// The lobe hull vertex under each cage vertex ([`NONE`] for the
     /// crown's inserted correspondence samples).
     pub(crate) hull_vertex: Vec<u32>,
     /// Mean value coordinates of each vertex in the parent's rest cage,

@@ -136,7 +136,7 @@ impl<'p> SketchMetrics<'p> {
     /// Fréchet distance and IoU of any frame's foliage against the
     /// reference crown at `frame.t`.
     pub fn shape(&mut self, frame: &Frame) -> ShapeMetrics {
-        let t = crate::plan::clamp_t(frame.t);
+        let t = crate::time::clamp_t(frame.t);
         let reference = self.plan.reference_crown(t);
         let (lo, px) = self.rasterise(frame, &reference);
         let inter = self

@@ -3,6 +3,7 @@
 use geo::{Area, BooleanOps};
 use glam::{Quat, Vec2, Vec3};
 use treemorph_analysis::Analysis;
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameTopology, NodeId, Tree};
 
 use crate::adapt;
@@ -14,10 +15,8 @@ use crate::options::{Method, SketchOptions};
 use crate::polygon;
 use crate::prune;
 use crate::sketch::{Fit, Sketch};
+use crate::time::clamp_t;
 use crate::view::{Camera, View};
-
-/// Sentinel for "none" in per-node and per-leaf indices.
-pub(crate) const NONE: u32 = u32::MAX;
 
 /// Where a right-hand-side value of a chain system comes from.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -214,7 +213,7 @@ impl SketchPlan {
         let crown_hull_vertex: Vec<u32> = crown
             .source_vertex
             .iter()
-            .map(|v| v.map_or(mct::NO_VERTEX, |i| s0.hull_vertex[i as usize]))
+            .map(|v| v.map_or(NONE, |i| s0.hull_vertex[i as usize]))
             .collect();
 
         // The cage tree.
@@ -445,11 +444,6 @@ impl SketchPlan {
     pub fn wilting_nodes(&self) -> &[bool] {
         &self.node_wilts
     }
-}
-
-/// Clamps an animation time into [0, 1]; NaN is 0.
-pub(crate) fn clamp_t(t: f32) -> f32 {
-    if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) }
 }
 
 /// The chains' Laplacian systems (Eq. 1 on each chain polyline), one per

@@ -3,24 +3,27 @@
 use faer::Mat;
 use faer::dyn_stack::MemBuffer;
 use glam::{Quat, Vec2};
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameLeaf, Leaf, LeafMaterial, Materials, Node, Tree, TreeParts};
 
 use crate::error::SketchError;
 use crate::laplacian::{COLS, scratch_for};
-use crate::plan::{NONE, SketchPlan, Source, clamp_t};
+use crate::lobes::{DeformedLobes, LobeBuffers};
+use crate::plan::{SketchPlan, Source};
+use crate::time::clamp_t;
 
 /// Reusable context that deforms the planned tree to any time t ∈ [0, 1]
 /// (the paper's Step 1–3 per frame). Keeps its buffers between frames.
 pub struct Sketcher<'p> {
-    pub(crate) plan: &'p SketchPlan,
-    pub(crate) cage_disp: Vec<Vec2>,
+    plan: &'p SketchPlan,
+    cage_disp: Vec<Vec2>,
     target_disp: Vec<Vec2>,
     node_disp: Vec<Vec2>,
     b: Vec<[f64; COLS]>,
     x: Mat<f64>,
     mem: MemBuffer,
     branch_rot: Vec<Quat>,
-    pub(crate) lobes: crate::lobes::LobeBuffers,
+    lobes: LobeBuffers,
 }
 
 impl<'p> Sketcher<'p> {
@@ -169,6 +172,21 @@ impl<'p> Sketcher<'p> {
                 blend: 0.0,
             });
         }
+    }
+
+    /// The lobes of every cage at time `t`, deformed with their cages (see
+    /// the `lobes` module docs). The first call factorises the lobe system;
+    /// later calls only solve.
+    pub fn deform_lobes(&mut self, t: f32) -> Result<DeformedLobes<'_>, SketchError> {
+        let t = clamp_t(t);
+        let plan = self.plan;
+        let source = &plan.lobes;
+        let system = source.system()?;
+        plan.mct
+            .displacements(&plan.crown_delta, t, &mut self.cage_disp);
+        Ok(self
+            .lobes
+            .deform(source, system, &self.cage_disp, &plan.camera))
     }
 
     /// Every cage's polygon at time `t` (NDC, indexed like

@@ -51,6 +51,7 @@
 
 mod bounds;
 pub mod frame;
+pub mod geom;
 pub mod json;
 mod model;
 mod texture;

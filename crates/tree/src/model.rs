@@ -3,7 +3,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::bounds::Aabb;
 use crate::texture::Texture;
-use crate::validate::{self, InvalidTree, Limits};
 
 /// Index of a node in [`Skeleton::nodes`]; also names the branch that ends at
 /// that node.
@@ -263,7 +262,7 @@ pub struct TreeParts {
 }
 
 /// A valid tree: one rooted skeleton, leaves on existing branches, finite
-/// numbers, positive radii and sizes within [`Limits`].
+/// numbers, positive radii and sizes within [`Limits`](crate::Limits).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Tree {
     name: String,
@@ -292,17 +291,9 @@ pub struct TreeStats {
     pub total_length: f32,
 }
 
+// `Tree::new` lives in validate.rs: the model is the lower module, the
+// rules that build a valid tree sit on top of it.
 impl Tree {
-    /// Validates `parts` against `limits` and builds the tree.
-    ///
-    /// Nodes are put in canonical order (root first, parents before
-    /// children); when the input already is in that order it is kept as is,
-    /// so a tree written by treemorph reads back identical. Leaf branches and
-    /// ground truth are renumbered with the nodes.
-    pub fn new(parts: TreeParts, limits: &Limits) -> Result<Tree, InvalidTree> {
-        validate::build(parts, limits)
-    }
-
     pub(crate) fn from_valid(
         name: String,
         skeleton: Skeleton,

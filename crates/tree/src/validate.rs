@@ -120,7 +120,8 @@ impl Field {
 
 /// Why a tree was refused. Indices refer to the input's order.
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum InvalidTree {
     /// The skeleton has no nodes.
     #[error("the skeleton has no nodes")]
@@ -277,7 +278,19 @@ fn finite3(v: Vec3) -> bool {
     v.is_finite()
 }
 
-pub(crate) fn build(parts: TreeParts, limits: &Limits) -> Result<Tree, InvalidTree> {
+impl Tree {
+    /// Validates `parts` against `limits` and builds the tree.
+    ///
+    /// Nodes are put in canonical order (root first, parents before
+    /// children); when the input already is in that order it is kept as is,
+    /// so a tree written by treemorph reads back identical. Leaf branches and
+    /// ground truth are renumbered with the nodes.
+    pub fn new(parts: TreeParts, limits: &Limits) -> Result<Tree, InvalidTree> {
+        build(parts, limits)
+    }
+}
+
+fn build(parts: TreeParts, limits: &Limits) -> Result<Tree, InvalidTree> {
     let TreeParts {
         name,
         nodes,

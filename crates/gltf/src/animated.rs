@@ -462,25 +462,50 @@ impl AnimatedGlbBuilder {
             ));
         }
         let encoding = self.options.encoding;
-        let keyframes = self.targets.len() + 1;
-        // Quantised normals are stored absolute, with keyframe 0 as an
-        // extra target (see the module docs).
-        let absolute_normals = encoding != AnimatedEncoding::Float;
-        let target_count = if absolute_normals {
-            keyframes
-        } else {
-            keyframes - 1
+        let layout = TargetLayout::new(encoding, self.targets.len() + 1);
+        let mut w = Writer {
+            doc: Doc::default(),
+            fallback_len: 0,
+            encoding,
         };
-        let mut doc: Doc<'static> = Doc::default();
-        let mut fallback_len = 0usize;
         if encoding != AnimatedEncoding::Float {
-            doc.use_extension(KHR_MESH_QUANTIZATION, true);
+            w.doc.use_extension(KHR_MESH_QUANTIZATION, true);
         }
         if encoding == AnimatedEncoding::Meshopt {
-            doc.use_extension(EXT_MESHOPT_COMPRESSION, true);
+            w.doc.use_extension(EXT_MESHOPT_COMPRESSION, true);
         }
+        self.write_materials(&mut w.doc, layout.keyframes);
+        let inputs = self.mesh_inputs(bases, stored_base);
+        let mut targets = std::mem::take(&mut self.targets);
+        for (m, input) in inputs.into_iter().enumerate() {
+            let node = self.write_mesh(&mut w, m, input, &mut targets, &layout);
+            w.doc.nodes.push(node);
+        }
+        let times: Vec<f32> = std::iter::once(self.first_time)
+            .chain(targets.iter().map(|k| k.time))
+            .collect();
+        write_animation(&mut w.doc, &times, &layout);
+        let Writer {
+            mut doc,
+            fallback_len,
+            ..
+        } = w;
+        if encoding == AnimatedEncoding::Meshopt {
+            doc.extra_buffers.push(json!({
+                "byteLength": fallback_len.max(4),
+                "extensions": { EXT_MESHOPT_COMPRESSION: { "fallback": true } },
+            }));
+        }
+        let mut root = Map::new();
+        root.insert("asset".into(), asset());
+        root.insert("scene".into(), json!(0));
+        root.insert("scenes".into(), json!([{ "nodes": [0, 1] }]));
+        Ok((doc, root))
+    }
 
-        // Materials: bark, then every leaf material.
+    /// Materials: bark (at the sequence's mean bark blend), then every leaf
+    /// material.
+    fn write_materials(&mut self, doc: &mut Doc<'static>, keyframes: usize) {
         let mean_bark = (self.bark_blends / keyframes as f64) as f32;
         let bark = self.looks.bark(self.looks.step(mean_bark)).clone();
         let mut looks = vec![bark];
@@ -494,8 +519,11 @@ impl AnimatedGlbBuilder {
                 .map(|t| doc.texture(Data::Owned(t.png().to_vec()), &look.name, wrap));
             doc.materials.push(material_json(look, texture, leaf));
         }
+    }
 
-        // Per mesh: uvs, primitives (index ranges and materials).
+    /// The branch and leaf meshes' keyframe-0 data, UVs and primitives
+    /// (index ranges and materials).
+    fn mesh_inputs(&self, bases: [Base; 2], stored_base: [Stored; 2]) -> [MeshInput; 2] {
         let branch_buffers = self.meshes.branches().buffers();
         let leaf_buffers = self.meshes.leaves().buffers();
         let leaf_uvs = layered_uvs(
@@ -507,188 +535,245 @@ impl AnimatedGlbBuilder {
         let branch_primitives = vec![(branch_buffers.indices.clone(), 0usize)];
         let leaf_primitives =
             layered_primitives(leaf_buffers, self.meshes.leaves().shape(), &self.fading);
-        let mut targets = std::mem::take(&mut self.targets);
-        let mut stored_base = stored_base.map(Some);
-        let names = ["branches", "leaves"];
-        let uvs = [branch_buffers.uvs.clone(), leaf_uvs];
-        let primitives = [branch_primitives, leaf_primitives];
-        for m in 0..2 {
-            let n = bases[m].len();
-            if n == 0 || primitives[m].iter().all(|(i, _)| i.is_empty()) {
-                doc.nodes.push(json!({ "name": names[m] }));
+        let [branch_base, leaf_base] = stored_base;
+        [
+            MeshInput {
+                name: "branches",
+                vertices: bases[0].len(),
+                base: branch_base,
+                uvs: branch_buffers.uvs.clone(),
+                primitives: branch_primitives,
+            },
+            MeshInput {
+                name: "leaves",
+                vertices: bases[1].len(),
+                base: leaf_base,
+                uvs: leaf_uvs,
+                primitives: leaf_primitives,
+            },
+        ]
+    }
+
+    /// Writes mesh `m` with its morph targets (taking its data out of
+    /// `targets`) and returns its node; an empty mesh gets a node without
+    /// a mesh.
+    fn write_mesh(
+        &self,
+        w: &mut Writer,
+        m: usize,
+        input: MeshInput,
+        targets: &mut [Keyframe],
+        layout: &TargetLayout,
+    ) -> Value {
+        let MeshInput {
+            name,
+            vertices: n,
+            base,
+            uvs,
+            primitives,
+        } = input;
+        if n == 0 || primitives.iter().all(|(i, _)| i.is_empty()) {
+            return json!({ "name": name });
+        }
+        let (pos_kind, nrm_kind) = kinds(w.encoding);
+        let (lo, hi) = match w.encoding {
+            AnimatedEncoding::Float => {
+                let b = self.base_bounds[m];
+                (
+                    b.min.to_array().map(f64::from),
+                    b.max.to_array().map(f64::from),
+                )
+            }
+            _ => (base.min, base.max),
+        };
+        let position = w.attribute(n, base.positions, pos_kind, Some((lo, hi)));
+        let normal = w.attribute(n, base.normals, nrm_kind, None);
+        let uv_bytes: Vec<u8> = uvs
+            .iter()
+            .flat_map(|v| v.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let uv = w.attribute(n, uv_bytes, Attr::Vec2F32, None);
+        let target_json = w.morph_targets(m, n, normal, targets, layout);
+        let mut prims = Vec::new();
+        for (indices, material) in &primitives {
+            if indices.is_empty() {
                 continue;
             }
-            let base = stored_base[m].take().expect("each mesh is taken once");
-            let (pos_kind, nrm_kind) = kinds(encoding);
-            let position_view = attribute_view(
-                &mut doc,
-                &mut fallback_len,
-                n,
-                encoding,
-                base.positions,
-                pos_kind,
-            );
-            let (lo, hi) = match encoding {
-                AnimatedEncoding::Float => {
-                    let b = self.base_bounds[m];
-                    (
-                        b.min.to_array().map(f64::from),
-                        b.max.to_array().map(f64::from),
-                    )
-                }
-                _ => (base.min, base.max),
-            };
-            let position = doc.accessor(accessor_json(position_view, pos_kind, n, Some((lo, hi))));
-            let normal_view = attribute_view(
-                &mut doc,
-                &mut fallback_len,
-                n,
-                encoding,
-                base.normals,
-                nrm_kind,
-            );
-            let normal = doc.accessor(accessor_json(normal_view, nrm_kind, n, None));
-            let uv_bytes: Vec<u8> = uvs[m]
-                .iter()
-                .flat_map(|v| v.to_array())
-                .flat_map(f32::to_le_bytes)
-                .collect();
-            let uv_view = attribute_view(
-                &mut doc,
-                &mut fallback_len,
-                n,
-                encoding,
-                uv_bytes,
-                Attr::Vec2F32,
-            );
-            let uv = doc.accessor(accessor_json(uv_view, Attr::Vec2F32, n, None));
-            let mut target_json = Vec::with_capacity(targets.len() + 1);
-            if absolute_normals {
-                // Target 0 is keyframe 0: no displacement (an accessor
-                // without a buffer view reads as zeros) and its normals,
-                // shared with the base.
-                let zero = doc.accessor(json!({
-                    "componentType": SHORT, "normalized": true, "count": n, "type": "VEC3",
-                    "min": [0, 0, 0], "max": [0, 0, 0],
-                }));
-                target_json.push(json!({ "POSITION": zero, "NORMAL": normal }));
-            }
-            for keyframe in &mut targets {
-                let stored = std::mem::replace(
-                    &mut keyframe.meshes[m],
-                    Stored {
-                        positions: Vec::new(),
-                        normals: Vec::new(),
-                        min: [0.0; 3],
-                        max: [0.0; 3],
-                    },
-                );
-                let pv = attribute_view(
-                    &mut doc,
-                    &mut fallback_len,
-                    n,
-                    encoding,
-                    stored.positions,
-                    pos_kind,
-                );
-                let pa = doc.accessor(accessor_json(
-                    pv,
-                    pos_kind,
-                    n,
-                    Some((stored.min, stored.max)),
-                ));
-                let nv = attribute_view(
-                    &mut doc,
-                    &mut fallback_len,
-                    n,
-                    encoding,
-                    stored.normals,
-                    nrm_kind,
-                );
-                let na = doc.accessor(accessor_json(nv, nrm_kind, n, None));
-                target_json.push(json!({ "POSITION": pa, "NORMAL": na }));
-            }
-            let mut prims = Vec::new();
-            for (indices, material) in &primitives[m] {
-                if indices.is_empty() {
-                    continue;
-                }
-                let accessor = index_accessor(&mut doc, &mut fallback_len, indices, n, encoding);
-                prims.push(json!({
-                    "attributes": { "POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv },
-                    "indices": accessor,
-                    "material": material,
-                    "mode": 4,
-                    "targets": target_json,
-                }));
-            }
-            let first = if absolute_normals { 0 } else { 1 };
-            let target_names: Vec<String> = (first..keyframes)
-                .map(|k| format!("keyframe {k}"))
-                .collect();
-            doc.meshes.push(json!({
-                "name": names[m],
-                "primitives": prims,
-                "weights": vec![0.0; target_count],
-                "extras": { "targetNames": target_names },
+            let accessor = index_accessor(&mut w.doc, &mut w.fallback_len, indices, n, w.encoding);
+            prims.push(json!({
+                "attributes": { "POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv },
+                "indices": accessor,
+                "material": material,
+                "mode": 4,
+                "targets": target_json,
             }));
-            let mut node = json!({ "name": names[m], "mesh": doc.meshes.len() - 1 });
-            if encoding != AnimatedEncoding::Float {
-                node["translation"] = json!(self.translation.to_array());
-                node["scale"] = json!([self.scale, self.scale, self.scale]);
-            }
-            doc.nodes.push(node);
         }
+        let first = if layout.absolute_normals { 0 } else { 1 };
+        let target_names: Vec<String> = (first..layout.keyframes)
+            .map(|k| format!("keyframe {k}"))
+            .collect();
+        w.doc.meshes.push(json!({
+            "name": name,
+            "primitives": prims,
+            "weights": vec![0.0; layout.target_count],
+            "extras": { "targetNames": target_names },
+        }));
+        let mut node = json!({ "name": name, "mesh": w.doc.meshes.len() - 1 });
+        if w.encoding != AnimatedEncoding::Float {
+            node["translation"] = json!(self.translation.to_array());
+            node["scale"] = json!([self.scale, self.scale, self.scale]);
+        }
+        node
+    }
+}
 
-        // The animation: keyframe k weighs target k alone.
-        let times: Vec<f32> = std::iter::once(self.first_time)
-            .chain(targets.iter().map(|k| k.time))
-            .collect();
-        let mut weights = vec![0f32; keyframes * target_count];
-        for k in 1..keyframes {
-            let row = &mut weights[k * target_count..(k + 1) * target_count];
-            if absolute_normals {
-                // Keyframe k's normals replace keyframe 0's.
-                row[0] = -1.0;
-                row[k] = 1.0;
-            } else {
-                row[k - 1] = 1.0;
-            }
+/// One mesh's data for the document.
+struct MeshInput {
+    name: &'static str,
+    vertices: usize,
+    /// Keyframe 0 as stored.
+    base: Stored,
+    uvs: Vec<Vec2>,
+    /// Index lists and their glTF materials.
+    primitives: Vec<(Vec<u32>, usize)>,
+}
+
+/// How keyframes map to morph targets.
+struct TargetLayout {
+    keyframes: usize,
+    /// Quantised normals are stored absolute, with keyframe 0 as an extra
+    /// target (see the module docs).
+    absolute_normals: bool,
+    /// Morph targets per mesh.
+    target_count: usize,
+}
+
+impl TargetLayout {
+    fn new(encoding: AnimatedEncoding, keyframes: usize) -> TargetLayout {
+        let absolute_normals = encoding != AnimatedEncoding::Float;
+        let target_count = if absolute_normals {
+            keyframes
+        } else {
+            keyframes - 1
+        };
+        TargetLayout {
+            keyframes,
+            absolute_normals,
+            target_count,
         }
-        let time_view = doc.view(Data::Owned(f32_bytes(&times)), None, None);
-        let input = doc.accessor(json!({
-            "bufferView": time_view, "componentType": FLOAT, "count": times.len(), "type": "SCALAR",
-            "min": [times[0]], "max": [times[times.len() - 1]],
-        }));
-        let weight_view = doc.view(Data::Owned(f32_bytes(&weights)), None, None);
-        let output = doc.accessor(json!({
-            "bufferView": weight_view, "componentType": FLOAT, "count": weights.len(), "type": "SCALAR",
-        }));
-        let channels: Vec<Value> = doc
-            .nodes
-            .iter()
-            .enumerate()
-            .filter(|(_, n)| n.get("mesh").is_some())
-            .map(|(i, _)| json!({ "sampler": 0, "target": { "node": i, "path": "weights" } }))
-            .collect();
-        if !channels.is_empty() {
-            doc.animations.push(json!({
-                "name": "morph",
-                "samplers": [{ "input": input, "output": output, "interpolation": "LINEAR" }],
-                "channels": channels,
+    }
+}
+
+/// The document being written and the length of the meshopt fallback
+/// buffer so far.
+struct Writer {
+    doc: Doc<'static>,
+    fallback_len: usize,
+    encoding: AnimatedEncoding,
+}
+
+impl Writer {
+    /// A vertex attribute's view and accessor; returns the accessor.
+    fn attribute(
+        &mut self,
+        count: usize,
+        bytes: Vec<u8>,
+        kind: Attr,
+        bounds: Option<([f64; 3], [f64; 3])>,
+    ) -> usize {
+        let view = attribute_view(
+            &mut self.doc,
+            &mut self.fallback_len,
+            count,
+            self.encoding,
+            bytes,
+            kind,
+        );
+        self.doc.accessor(accessor_json(view, kind, count, bounds))
+    }
+
+    /// The morph targets of mesh `m` (`n` vertices, keyframe-0 normals
+    /// `normal`), taking their data out of `targets`.
+    fn morph_targets(
+        &mut self,
+        m: usize,
+        n: usize,
+        normal: usize,
+        targets: &mut [Keyframe],
+        layout: &TargetLayout,
+    ) -> Vec<Value> {
+        let (pos_kind, nrm_kind) = kinds(self.encoding);
+        let mut target_json = Vec::with_capacity(targets.len() + 1);
+        if layout.absolute_normals {
+            // Target 0 is keyframe 0: no displacement (an accessor
+            // without a buffer view reads as zeros) and its normals,
+            // shared with the base.
+            let zero = self.doc.accessor(json!({
+                "componentType": SHORT, "normalized": true, "count": n, "type": "VEC3",
+                "min": [0, 0, 0], "max": [0, 0, 0],
             }));
+            target_json.push(json!({ "POSITION": zero, "NORMAL": normal }));
         }
-        if encoding == AnimatedEncoding::Meshopt {
-            doc.extra_buffers.push(json!({
-                "byteLength": fallback_len.max(4),
-                "extensions": { EXT_MESHOPT_COMPRESSION: { "fallback": true } },
-            }));
+        for keyframe in targets {
+            let stored = std::mem::replace(
+                &mut keyframe.meshes[m],
+                Stored {
+                    positions: Vec::new(),
+                    normals: Vec::new(),
+                    min: [0.0; 3],
+                    max: [0.0; 3],
+                },
+            );
+            let pa = self.attribute(
+                n,
+                stored.positions,
+                pos_kind,
+                Some((stored.min, stored.max)),
+            );
+            let na = self.attribute(n, stored.normals, nrm_kind, None);
+            target_json.push(json!({ "POSITION": pa, "NORMAL": na }));
         }
-        let mut root = Map::new();
-        root.insert("asset".into(), asset());
-        root.insert("scene".into(), json!(0));
-        root.insert("scenes".into(), json!([{ "nodes": [0, 1] }]));
-        Ok((doc, root))
+        target_json
+    }
+}
+
+/// The animation: keyframe k (at `times[k]`) weighs target k alone.
+fn write_animation(doc: &mut Doc<'static>, times: &[f32], layout: &TargetLayout) {
+    let (keyframes, target_count) = (layout.keyframes, layout.target_count);
+    let mut weights = vec![0f32; keyframes * target_count];
+    for k in 1..keyframes {
+        let row = &mut weights[k * target_count..(k + 1) * target_count];
+        if layout.absolute_normals {
+            // Keyframe k's normals replace keyframe 0's.
+            row[0] = -1.0;
+            row[k] = 1.0;
+        } else {
+            row[k - 1] = 1.0;
+        }
+    }
+    let time_view = doc.view(Data::Owned(f32_bytes(times)), None, None);
+    let input = doc.accessor(json!({
+        "bufferView": time_view, "componentType": FLOAT, "count": times.len(), "type": "SCALAR",
+        "min": [times[0]], "max": [times[times.len() - 1]],
+    }));
+    let weight_view = doc.view(Data::Owned(f32_bytes(&weights)), None, None);
+    let output = doc.accessor(json!({
+        "bufferView": weight_view, "componentType": FLOAT, "count": weights.len(), "type": "SCALAR",
+    }));
+    let channels: Vec<Value> = doc
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.get("mesh").is_some())
+        .map(|(i, _)| json!({ "sampler": 0, "target": { "node": i, "path": "weights" } }))
+        .collect();
+    if !channels.is_empty() {
+        doc.animations.push(json!({
+            "name": "morph",
+            "samplers": [{ "input": input, "output": output, "interpolation": "LINEAR" }],
+            "channels": channels,
+        }));
     }
 }
 

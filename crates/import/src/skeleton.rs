@@ -117,55 +117,119 @@ pub(crate) fn assemble(
     pieces: &[Piece],
     warnings: &mut Vec<String>,
 ) -> Result<Vec<Node>, ImportError> {
-    let mut pos: Vec<Vec3> = Vec::new();
-    let mut rad: Vec<f32> = Vec::new();
-    let mut piece_of: Vec<u32> = Vec::new();
-    let mut segments: Vec<(u32, u32)> = Vec::new();
-    let mut seg_piece: Vec<u32> = Vec::new();
-    for (k, p) in pieces.iter().enumerate() {
-        let base = pos.len() as u32;
-        pos.extend_from_slice(&p.points);
-        rad.extend_from_slice(&p.radii);
-        piece_of.extend(std::iter::repeat_n(k as u32, p.points.len()));
-        for &(a, b) in &p.edges {
-            segments.push((base + a, base + b));
-            seg_piece.push(k as u32);
+    let mut soup = Soup::of(pieces)?;
+    let root = soup.root()?;
+    let joins = soup.attach_pieces(pieces.len(), root)?;
+    let joined = soup.join(&joins, root, warnings);
+    let mut nodes = soup.breadth_first(&joined)?;
+    floor_radii(&mut nodes);
+    Ok(nodes)
+}
+
+/// Every piece's points and segments in one numbering (step 1–3 work on
+/// it; step 4 appends the split points).
+struct Soup {
+    pos: Vec<Vec3>,
+    rad: Vec<f32>,
+    piece_of: Vec<u32>,
+    segments: Vec<(u32, u32)>,
+    seg_piece: Vec<u32>,
+    /// Neighbours of each of the pieces' own points (before any join).
+    degree: Vec<u32>,
+    /// Lowest and highest point, metres.
+    ymin: f32,
+    ymax: f32,
+}
+
+impl Soup {
+    fn of(pieces: &[Piece]) -> Result<Soup, ImportError> {
+        let mut pos: Vec<Vec3> = Vec::new();
+        let mut rad: Vec<f32> = Vec::new();
+        let mut piece_of: Vec<u32> = Vec::new();
+        let mut segments: Vec<(u32, u32)> = Vec::new();
+        let mut seg_piece: Vec<u32> = Vec::new();
+        for (k, p) in pieces.iter().enumerate() {
+            let base = pos.len() as u32;
+            pos.extend_from_slice(&p.points);
+            rad.extend_from_slice(&p.radii);
+            piece_of.extend(std::iter::repeat_n(k as u32, p.points.len()));
+            for &(a, b) in &p.edges {
+                segments.push((base + a, base + b));
+                seg_piece.push(k as u32);
+            }
+        }
+        let n = pos.len();
+        if n == 0 {
+            return Err(ImportError::InvalidTree(
+                "the branch meshes give no skeleton points".into(),
+            ));
+        }
+        let mut degree = vec![0u32; n];
+        for &(a, b) in &segments {
+            degree[a as usize] += 1;
+            degree[b as usize] += 1;
+        }
+        let (ymin, ymax) = pos.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+            (lo.min(p.y), hi.max(p.y))
+        });
+        Ok(Soup {
+            pos,
+            rad,
+            piece_of,
+            segments,
+            seg_piece,
+            degree,
+            ymin,
+            ymax,
+        })
+    }
+
+    /// Points of the pieces themselves (split points come after them).
+    fn own_points(&self) -> usize {
+        self.degree.len()
+    }
+
+    fn is_end(&self, v: usize) -> bool {
+        self.degree[v] <= 1
+    }
+
+    /// Step 1: the thickest end near the ground, else the lowest point.
+    fn root(&self) -> Result<usize, ImportError> {
+        let (pos, rad) = (&self.pos, &self.rad);
+        let band = self.ymin + 0.02 * (self.ymax - self.ymin);
+        (0..self.own_points())
+            .filter(|&v| self.is_end(v) && pos[v].y <= band)
+            .max_by(|&a, &b| {
+                rad[a]
+                    .total_cmp(&rad[b])
+                    .then(pos[b].y.total_cmp(&pos[a].y))
+            })
+            .or_else(|| (0..self.own_points()).min_by(|&a, &b| pos[a].y.total_cmp(&pos[b].y)))
+            .ok_or_else(|| ImportError::Internal("no root candidate".into()))
+    }
+
+    /// A candidate joining `end` to global segment `seg`.
+    fn candidate(&self, end: usize, seg: u32) -> Candidate {
+        let (a, b) = self.segments[seg as usize];
+        let (s, dist) =
+            closest_on_segment(self.pos[end], self.pos[a as usize], self.pos[b as usize]);
+        Candidate {
+            dist,
+            piece: self.piece_of[end],
+            end: end as u32,
+            target_piece: self.seg_piece[seg as usize],
+            segment: seg,
+            s,
         }
     }
-    let n = pos.len();
-    if n == 0 {
-        return Err(ImportError::InvalidTree(
-            "the branch meshes give no skeleton points".into(),
-        ));
-    }
-    let mut degree = vec![0u32; n];
-    for &(a, b) in &segments {
-        degree[a as usize] += 1;
-        degree[b as usize] += 1;
-    }
-    let is_end = |v: usize| degree[v] <= 1;
-    let (ymin, ymax) = pos.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
-        (lo.min(p.y), hi.max(p.y))
-    });
-    let band = ymin + 0.02 * (ymax - ymin);
-    let root = (0..n)
-        .filter(|&v| is_end(v) && pos[v].y <= band)
-        .max_by(|&a, &b| {
-            rad[a]
-                .total_cmp(&rad[b])
-                .then(pos[b].y.total_cmp(&pos[a].y))
-        })
-        .or_else(|| (0..n).min_by(|&a, &b| pos[a].y.total_cmp(&pos[b].y)))
-        .ok_or_else(|| ImportError::Internal("no root candidate".into()))?;
 
-    let mut attached = vec![false; pieces.len()];
-    let root_piece = piece_of[root] as usize;
-    attached[root_piece] = true;
-    let mut joins: Vec<Candidate> = Vec::new();
-    if pieces.len() > 1 {
-        let lengths: Vec<f32> = segments
+    /// Spacing of the samples of a [`SegmentIndex`]: half the median
+    /// segment, coarse enough to keep the index under ~400,000 samples.
+    fn sample_step(&self) -> f32 {
+        let lengths: Vec<f32> = self
+            .segments
             .iter()
-            .map(|&(a, b)| pos[a as usize].distance(pos[b as usize]))
+            .map(|&(a, b)| self.pos[a as usize].distance(self.pos[b as usize]))
             .collect();
         let total: f32 = lengths.iter().sum();
         let mut sorted = lengths.clone();
@@ -175,34 +239,85 @@ pub(crate) fn assemble(
         } else {
             *sorted.select_nth_unstable_by(mid, f32::total_cmp).1
         };
-        let step = (0.5 * median).max(total / 400_000.0).max(1e-6);
-        let index = SegmentIndex::new(&pos, &segments, step);
+        (0.5 * median).max(total / 400_000.0).max(1e-6)
+    }
 
-        // Candidates per target piece.
-        let mut by_target: Vec<Vec<Candidate>> = vec![Vec::new(); pieces.len()];
-        for end in (0..n).filter(|&v| is_end(v)) {
-            let piece = piece_of[end];
+    /// Steps 2–3: the join of every piece but the root's, in the order
+    /// Prim's growth attaches them.
+    fn attach_pieces(&self, pieces: usize, root: usize) -> Result<Vec<Candidate>, ImportError> {
+        let mut attached = vec![false; pieces];
+        let root_piece = self.piece_of[root] as usize;
+        attached[root_piece] = true;
+        let mut joins: Vec<Candidate> = Vec::new();
+        if pieces == 1 {
+            return Ok(joins);
+        }
+        let step = self.sample_step();
+        let by_target = self.candidates(
+            pieces,
+            root_piece,
+            &SegmentIndex::new(&self.pos, &self.segments, step),
+        );
+        let mut heap: BinaryHeap<Reverse<(u32, u32, u32)>> = BinaryHeap::new();
+        let push = |heap: &mut BinaryHeap<Reverse<(u32, u32, u32)>>, t: usize| {
+            for (i, c) in by_target[t].iter().enumerate() {
+                heap.push(Reverse((c.dist.to_bits(), t as u32, i as u32)));
+            }
+        };
+        push(&mut heap, root_piece);
+        let mut remaining = pieces - 1;
+        while remaining > 0 {
+            while let Some(Reverse((_, t, i))) = heap.pop() {
+                let c = by_target[t as usize][i as usize];
+                if attached[c.piece as usize] {
+                    continue;
+                }
+                attached[c.piece as usize] = true;
+                remaining -= 1;
+                joins.push(c);
+                push(&mut heap, c.piece as usize);
+            }
+            if remaining == 0 {
+                break;
+            }
+            let Some(c) = self.nearest_leftover(&attached, step) else {
+                return Err(ImportError::InvalidTree(
+                    "the branch mesh falls apart into pieces that cannot be joined into one skeleton"
+                        .into(),
+                ));
+            };
+            attached[c.piece as usize] = true;
+            remaining -= 1;
+            joins.push(c);
+            push(&mut heap, c.piece as usize);
+        }
+        Ok(joins)
+    }
+
+    /// Step 2: per target piece, the candidates naming it — for every end
+    /// outside the root's piece, the nearest point on up to four other
+    /// pieces.
+    fn candidates(
+        &self,
+        pieces: usize,
+        root_piece: usize,
+        index: &SegmentIndex,
+    ) -> Vec<Vec<Candidate>> {
+        let mut by_target: Vec<Vec<Candidate>> = vec![Vec::new(); pieces];
+        for end in (0..self.own_points()).filter(|&v| self.is_end(v)) {
+            let piece = self.piece_of[end];
             if piece as usize == root_piece {
                 continue;
             }
             let mut best: Vec<Candidate> = Vec::new();
-            for seg in index.near(pos[end], 32) {
-                let target = seg_piece[seg as usize];
+            for seg in index.near(self.pos[end], 32) {
+                let target = self.seg_piece[seg as usize];
                 if target == piece {
                     continue;
                 }
-                let (a, b) = segments[seg as usize];
-                let (s, dist) = closest_on_segment(pos[end], pos[a as usize], pos[b as usize]);
-                let c = Candidate {
-                    dist,
-                    piece,
-                    end: end as u32,
-                    target_piece: target,
-                    segment: seg,
-                    s,
-                };
+                let c = self.candidate(end, seg);
                 match best.iter_mut().find(|x| x.target_piece == target) {
-                    Some(x) if x.dist > dist => *x = c,
+                    Some(x) if x.dist > c.dist => *x = c,
                     Some(_) => {}
                     None => best.push(c),
                 }
@@ -213,217 +328,198 @@ pub(crate) fn assemble(
                 by_target[c.target_piece as usize].push(c);
             }
         }
-        let mut heap: BinaryHeap<Reverse<(u32, u32, u32)>> = BinaryHeap::new();
-        let push = |heap: &mut BinaryHeap<Reverse<(u32, u32, u32)>>,
-                    by: &Vec<Vec<Candidate>>,
-                    t: usize| {
-            for (i, c) in by[t].iter().enumerate() {
-                heap.push(Reverse((c.dist.to_bits(), t as u32, i as u32)));
+        by_target
+    }
+
+    /// The leftover piece nearest to the attached ones, and its join, for
+    /// when Prim's growth runs out of candidates.
+    fn nearest_leftover(&self, attached: &[bool], step: f32) -> Option<Candidate> {
+        let attached_segments: Vec<u32> = (0..self.segments.len() as u32)
+            .filter(|&s| attached[self.seg_piece[s as usize] as usize])
+            .collect();
+        let sub: Vec<(u32, u32)> = attached_segments
+            .iter()
+            .map(|&s| self.segments[s as usize])
+            .collect();
+        let sub_index = SegmentIndex::new(&self.pos, &sub, step);
+        let leftover = |v: usize| !attached[self.piece_of[v] as usize];
+        let mut best: Option<Candidate> = None;
+        for end in (0..self.own_points()).filter(|&v| self.is_end(v) && leftover(v)) {
+            for local in sub_index.near(self.pos[end], 8) {
+                let c = self.candidate(end, attached_segments[local as usize]);
+                if best.is_none_or(|x| c.dist < x.dist) {
+                    best = Some(c);
+                }
             }
-        };
-        push(&mut heap, &by_target, root_piece);
-        let mut remaining = pieces.len() - 1;
-        while remaining > 0 {
-            while let Some(Reverse((_, t, i))) = heap.pop() {
-                let c = by_target[t as usize][i as usize];
-                if attached[c.piece as usize] {
+        }
+        if best.is_none() {
+            // The grid search found nothing near: the leftover pieces
+            // are far away (hostile coordinates) or closed loops with
+            // no end (found by fuzzing). Try every vertex of them
+            // against every attached segment; only hostile files get
+            // here, so the quadratic cost is bounded by the size
+            // limits and paid by them alone.
+            for v in (0..self.own_points()).filter(|&v| leftover(v)) {
+                for &seg in &attached_segments {
+                    let c = self.candidate(v, seg);
+                    if c.dist.is_finite() && best.is_none_or(|x| c.dist < x.dist) {
+                        best = Some(c);
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// Step 4: snaps or splits at every join and merges or connects the
+    /// attaching ends.
+    fn join(&mut self, joins: &[Candidate], root: usize, warnings: &mut Vec<String>) -> Joined {
+        let n = self.own_points();
+        let mut alias: Vec<u32> = (0..n as u32).collect();
+        let mut splits: Vec<Vec<(f32, u32)>> = vec![Vec::new(); self.segments.len()];
+        let mut extra: Vec<(u32, u32)> = Vec::new();
+        let mut big_gaps = 0usize;
+        for c in joins {
+            let (pos, rad) = (&mut self.pos, &mut self.rad);
+            let (a, b) = self.segments[c.segment as usize];
+            let (pa, pb) = (pos[a as usize], pos[b as usize]);
+            let len = pa.distance(pb);
+            let r = rad[a as usize] + (rad[b as usize] - rad[a as usize]) * c.s;
+            let snap = (0.1 * len).max(0.25 * r).min(0.5 * len);
+            let target = if c.s * len <= snap {
+                a
+            } else if (1.0 - c.s) * len <= snap {
+                b
+            } else {
+                let id = pos.len() as u32;
+                pos.push(pa.lerp(pb, c.s));
+                rad.push(r);
+                alias.push(id);
+                splits[c.segment as usize].push((c.s, id));
+                id
+            };
+            let end = c.end as usize;
+            let gap = pos[end].distance(pos[target as usize]);
+            if c.dist > rad[end] + r + 0.05 * (self.ymax - self.ymin) {
+                big_gaps += 1;
+            }
+            if gap <= MIN_BRANCH.max(0.1 * rad[end].min(r)) {
+                alias[end] = target;
+            } else {
+                extra.push((target, end as u32));
+            }
+        }
+        if big_gaps > 0 {
+            warnings.push(format!(
+                "{big_gaps} separate wood parts were joined to the tree across gaps wider than their thickness"
+            ));
+        }
+        let mut edges: Vec<(u32, u32)> = Vec::with_capacity(self.segments.len() + extra.len() + 8);
+        for (i, &(a, b)) in self.segments.iter().enumerate() {
+            let mut list = std::mem::take(&mut splits[i]);
+            list.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let mut prev = a;
+            for (_, id) in list {
+                edges.push((prev, id));
+                prev = id;
+            }
+            edges.push((prev, b));
+        }
+        edges.extend(extra);
+        let edges: Vec<(u32, u32)> = edges
+            .into_iter()
+            .map(|(a, b)| (resolve(a, &alias), resolve(b, &alias)))
+            .filter(|(a, b)| a != b)
+            .collect();
+        Joined {
+            edges,
+            root: resolve(root as u32, &alias),
+            alias,
+        }
+    }
+
+    /// Nodes breadth-first from the root; nodes too close to their parent
+    /// are merged into it. Fails when a point is left unreached (a bug: the
+    /// joins connect every piece).
+    fn breadth_first(&self, joined: &Joined) -> Result<Vec<Node>, ImportError> {
+        let (pos, rad, root) = (&self.pos, &self.rad, joined.root);
+        let total = pos.len();
+        let adj = crate::mesh::Adjacency::of_edges(total, joined.edges.iter().copied());
+        let mut id = vec![u32::MAX; total];
+        let mut nodes: Vec<Node> = Vec::new();
+        id[root as usize] = 0;
+        nodes.push(Node {
+            position: pos[root as usize],
+            radius: rad[root as usize],
+            parent: None,
+        });
+        let mut queue_head = 0;
+        let mut queue = vec![root];
+        while queue_head < queue.len() {
+            let v = queue[queue_head];
+            queue_head += 1;
+            let vid = id[v as usize];
+            for &w in adj.neighbours(v) {
+                if id[w as usize] != u32::MAX {
                     continue;
                 }
-                attached[c.piece as usize] = true;
-                remaining -= 1;
-                joins.push(c);
-                push(&mut heap, &by_target, c.piece as usize);
-            }
-            if remaining == 0 {
-                break;
-            }
-            // Leftovers: attach the one nearest to the attached pieces.
-            let attached_segments: Vec<u32> = (0..segments.len() as u32)
-                .filter(|&s| attached[seg_piece[s as usize] as usize])
-                .collect();
-            let sub: Vec<(u32, u32)> = attached_segments
-                .iter()
-                .map(|&s| segments[s as usize])
-                .collect();
-            let sub_index = SegmentIndex::new(&pos, &sub, step);
-            let mut best: Option<Candidate> = None;
-            for end in (0..n).filter(|&v| is_end(v) && !attached[piece_of[v] as usize]) {
-                for local in sub_index.near(pos[end], 8) {
-                    let seg = attached_segments[local as usize];
-                    let (a, b) = segments[seg as usize];
-                    let (s, dist) = closest_on_segment(pos[end], pos[a as usize], pos[b as usize]);
-                    if best.is_none_or(|x| dist < x.dist) {
-                        best = Some(Candidate {
-                            dist,
-                            piece: piece_of[end],
-                            end: end as u32,
-                            target_piece: seg_piece[seg as usize],
-                            segment: seg,
-                            s,
-                        });
-                    }
+                let parent_pos = nodes[vid as usize].position;
+                if pos[w as usize].distance(parent_pos) < MIN_BRANCH {
+                    id[w as usize] = vid;
+                } else {
+                    id[w as usize] = nodes.len() as u32;
+                    nodes.push(Node {
+                        position: pos[w as usize],
+                        radius: rad[w as usize],
+                        parent: Some(vid),
+                    });
                 }
+                queue.push(w);
             }
-            if best.is_none() {
-                // The grid search found nothing near: the leftover pieces
-                // are far away (hostile coordinates) or closed loops with
-                // no end (found by fuzzing). Try every vertex of them
-                // against every attached segment; only hostile files get
-                // here, so the quadratic cost is bounded by the size
-                // limits and paid by them alone.
-                for v in (0..n).filter(|&v| !attached[piece_of[v] as usize]) {
-                    for &seg in &attached_segments {
-                        let (a, b) = segments[seg as usize];
-                        let (s, dist) =
-                            closest_on_segment(pos[v], pos[a as usize], pos[b as usize]);
-                        if dist.is_finite() && best.is_none_or(|x| dist < x.dist) {
-                            best = Some(Candidate {
-                                dist,
-                                piece: piece_of[v],
-                                end: v as u32,
-                                target_piece: seg_piece[seg as usize],
-                                segment: seg,
-                                s,
-                            });
-                        }
-                    }
-                }
-            }
-            let Some(c) = best else {
-                return Err(ImportError::InvalidTree(
-                    "the branch mesh falls apart into pieces that cannot be joined into one skeleton"
-                        .into(),
-                ));
-            };
-            attached[c.piece as usize] = true;
-            remaining -= 1;
-            joins.push(c);
-            push(&mut heap, &by_target, c.piece as usize);
         }
+        let reached = queue.len();
+        let live = (0..total)
+            .filter(|&v| {
+                resolve(v as u32, &joined.alias) == v as u32
+                    && adj.neighbours(v as u32).len() + usize::from(v as u32 == root) > 0
+            })
+            .count();
+        if reached < live {
+            return Err(ImportError::Internal(format!(
+                "the assembled skeleton reaches {reached} of {live} points"
+            )));
+        }
+        Ok(nodes)
     }
+}
 
-    // Joins: snap or split, then merge or connect.
-    let mut alias: Vec<u32> = (0..n as u32).collect();
-    let mut splits: Vec<Vec<(f32, u32)>> = vec![Vec::new(); segments.len()];
-    let mut extra: Vec<(u32, u32)> = Vec::new();
-    let mut big_gaps = 0usize;
-    for c in &joins {
-        let (a, b) = segments[c.segment as usize];
-        let (pa, pb) = (pos[a as usize], pos[b as usize]);
-        let len = pa.distance(pb);
-        let r = rad[a as usize] + (rad[b as usize] - rad[a as usize]) * c.s;
-        let snap = (0.1 * len).max(0.25 * r).min(0.5 * len);
-        let target = if c.s * len <= snap {
-            a
-        } else if (1.0 - c.s) * len <= snap {
-            b
-        } else {
-            let id = pos.len() as u32;
-            pos.push(pa.lerp(pb, c.s));
-            rad.push(r);
-            alias.push(id);
-            splits[c.segment as usize].push((c.s, id));
-            id
-        };
-        let end = c.end as usize;
-        let gap = pos[end].distance(pos[target as usize]);
-        if c.dist > rad[end] + r + 0.05 * (ymax - ymin) {
-            big_gaps += 1;
-        }
-        if gap <= MIN_BRANCH.max(0.1 * rad[end].min(r)) {
-            alias[end] = target;
-        } else {
-            extra.push((target, end as u32));
-        }
-    }
-    if big_gaps > 0 {
-        warnings.push(format!(
-            "{big_gaps} separate wood parts were joined to the tree across gaps wider than their thickness"
-        ));
-    }
-    let resolve = |mut v: u32, alias: &[u32]| {
-        while alias[v as usize] != v {
-            v = alias[v as usize];
-        }
-        v
-    };
-    let mut edges: Vec<(u32, u32)> = Vec::with_capacity(segments.len() + extra.len() + 8);
-    for (i, &(a, b)) in segments.iter().enumerate() {
-        let mut list = std::mem::take(&mut splits[i]);
-        list.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let mut prev = a;
-        for (_, id) in list {
-            edges.push((prev, id));
-            prev = id;
-        }
-        edges.push((prev, b));
-    }
-    edges.extend(extra);
-    let total = pos.len();
-    let edges: Vec<(u32, u32)> = edges
-        .into_iter()
-        .map(|(a, b)| (resolve(a, &alias), resolve(b, &alias)))
-        .filter(|(a, b)| a != b)
-        .collect();
-    let root = resolve(root as u32, &alias);
-    let adj = crate::mesh::Adjacency::of_edges(total, edges.iter().copied());
+/// The joined tree of step 4, merged points resolved.
+struct Joined {
+    edges: Vec<(u32, u32)>,
+    root: u32,
+    /// Per point, the point it was merged into (itself when kept).
+    alias: Vec<u32>,
+}
 
-    // Breadth-first from the root; nodes too close to their parent are
-    // merged into it.
-    let mut id = vec![u32::MAX; total];
-    let mut nodes: Vec<Node> = Vec::new();
-    let mut stack = vec![(root, None::<u32>)];
-    id[root as usize] = 0;
-    nodes.push(Node {
-        position: pos[root as usize],
-        radius: rad[root as usize],
-        parent: None,
-    });
-    let mut queue_head = 0;
-    let mut queue = vec![root];
-    stack.clear();
-    while queue_head < queue.len() {
-        let v = queue[queue_head];
-        queue_head += 1;
-        let vid = id[v as usize];
-        for &w in adj.neighbours(v) {
-            if id[w as usize] != u32::MAX {
-                continue;
-            }
-            let parent_pos = nodes[vid as usize].position;
-            if pos[w as usize].distance(parent_pos) < MIN_BRANCH {
-                id[w as usize] = vid;
-            } else {
-                id[w as usize] = nodes.len() as u32;
-                nodes.push(Node {
-                    position: pos[w as usize],
-                    radius: rad[w as usize],
-                    parent: Some(vid),
-                });
-            }
-            queue.push(w);
-        }
-    }
-    let reached = queue.len();
-    let live = (0..total)
-        .filter(|&v| {
-            resolve(v as u32, &alias) == v as u32
-                && adj.neighbours(v as u32).len() + usize::from(v as u32 == root) > 0
-        })
-        .count();
-    if reached < live {
-        return Err(ImportError::Internal(format!(
-            "the assembled skeleton reaches {reached} of {live} points"
-        )));
-    }
+/// Raises every radius to at least a thousandth of the thickest (and 10 µm):
+/// the tree model refuses radii that are not positive, and a contracted
+/// mesh can leave zero or NaN radii at its tips.
+fn floor_radii(nodes: &mut [Node]) {
     let rmax = nodes.iter().map(|n| n.radius).fold(0.0f32, f32::max);
     let floor = (1e-3 * rmax).max(1e-5);
-    for node in &mut nodes {
+    for node in nodes {
         if node.radius.is_nan() || node.radius < floor {
             node.radius = floor;
         }
     }
-    Ok(nodes)
+}
+
+/// The point `v` was merged into.
+fn resolve(mut v: u32, alias: &[u32]) -> u32 {
+    while alias[v as usize] != v {
+        v = alias[v as usize];
+    }
+    v
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use std::ops::Range;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 use treemorph_analysis::{Analysis, ChainId};
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameLeafTopology, FrameTopology, NodeId, Strands, Tree};
 
 use crate::correspondence::{Correspondence, Input, LeafMatch, Operation, correspond};
@@ -70,6 +71,11 @@ impl ChainArrays {
             a.offsets.push(a.points.len() as u32);
         }
         a
+    }
+
+    /// Number of chains.
+    fn len(&self) -> usize {
+        self.growth.len()
     }
 
     fn get(&self, c: ChainId) -> ChainView<'_> {
@@ -244,12 +250,28 @@ impl Local {
     }
 }
 
-/// A union chain before ordering.
+/// A union chain before its samples are laid out.
+#[derive(Clone, Copy)]
 struct Proto {
     operation: Operation,
     source: Option<ChainId>,
     target: Option<ChainId>,
+    /// Parent union chain, or [`NONE`].
     parent: u32,
+    /// Depth in the union chain tree (set when the chains are ordered).
+    level: u32,
+}
+
+impl Proto {
+    fn new(operation: Operation, source: Option<ChainId>, target: Option<ChainId>) -> Proto {
+        Proto {
+            operation,
+            source,
+            target,
+            parent: NONE,
+            level: 0,
+        }
+    }
 }
 
 /// What the plan needs of one input leaf, gathered in one sequential pass
@@ -567,23 +589,23 @@ impl MorphPlan {
         check_analysis(source, source_analysis, Side::Source)?;
         check_analysis(target, target_analysis, Side::Target)?;
         let heights = [tree_height(source), tree_height(target)];
-        let s = Input::new(source, source_analysis, heights[0]);
-        let t = Input::new(target, target_analysis, heights[1]);
-        let correspondence = correspond(&s, &t, options);
-        let mut plan = build(&s, &t, correspondence, options, heights)?;
+        let source_input = Input::new(source, source_analysis, heights[0]);
+        let target_input = Input::new(target, target_analysis, heights[1]);
+        let correspondence = correspond(&source_input, &target_input, options);
+        let mut plan = build(
+            &source_input,
+            &target_input,
+            correspondence,
+            options,
+            heights,
+        )?;
         plan.endpoint = plan.measure_endpoints(source, target);
         Ok(plan)
     }
 
     fn measure_endpoints(&self, source: &Tree, target: &Tree) -> EndpointError {
         let mut morpher = Morpher::new(self);
-        let mut frame = Frame {
-            t: 0.0,
-            positions: Vec::new(),
-            radii: Vec::new(),
-            leaves: Vec::new(),
-            bark_blend: 0.0,
-        };
+        let mut frame = Frame::default();
         let mut junctions = vec![false; self.topology.node_count()];
         for c in &self.chains {
             junctions[c.nodes.start as usize] = true;
@@ -623,79 +645,201 @@ impl MorphPlan {
     }
 }
 
+/// Builds the plan of `source` → `target` from their correspondence (§6);
+/// the caller measures its endpoint error.
 pub(crate) fn build(
-    s: &Input,
-    t: &Input,
+    source: &Input,
+    target: &Input,
     correspondence: Correspondence,
     options: &MorphOptions,
     heights: [f32; 2],
 ) -> Result<MorphPlan, MorphError> {
-    let (sa, ta) = (s.analysis, t.analysis);
-    const NONE: u32 = u32::MAX;
+    let arrays = [
+        ChainArrays::of(source.analysis),
+        ChainArrays::of(target.analysis),
+    ];
+    let union = UnionChains::of(&correspondence, &arrays)?;
+    let layout = ChainLayout::of(&union, &arrays)?;
+    let (side_data, samples) = sample_sides(&arrays, &layout)?;
+    let leaves = LeafPlanner {
+        union: &union,
+        layout: &layout,
+        side_data: &side_data,
+        facts: [
+            leaf_facts(source, 0),
+            leaf_facts(target, source.tree.materials().leaves.len() as u32),
+        ],
+        linear: matches!(options.leaf_morph, LeafMorph::RandomLinear { .. }),
+    }
+    .plan_all(&correspondence.leaves)?;
+    let mut leaf_materials = source.tree.materials().leaves.clone();
+    leaf_materials.extend(target.tree.materials().leaves.iter().cloned());
+    let ChainLayout {
+        chain_plans,
+        chains,
+        sample_u,
+        sample_inv_span,
+        node_origins,
+        parents,
+        levels,
+        ..
+    } = layout;
+    let topology = FrameTopology {
+        parents,
+        strands: Strands::from_polylines(chains.iter().map(|c| c.nodes.clone())),
+        leaves: leaves.topology,
+        leaf_materials,
+        bark: [
+            source.tree.materials().bark.clone(),
+            target.tree.materials().bark.clone(),
+        ],
+    };
+    let parallel = topology.node_count() + leaves.plans.len() > options.parallel_threshold;
+    let (source_root, target_root) = (
+        source.tree.skeleton().node(0),
+        target.tree.skeleton().node(0),
+    );
+    Ok(MorphPlan {
+        topology,
+        correspondence,
+        chains,
+        node_origins,
+        chain_plans,
+        levels,
+        samples,
+        sample_u,
+        sample_inv_span,
+        leaf_plans: leaves.plans,
+        leaf_hosts: leaves.hosts,
+        leaf_offset_len: leaves.offset_lens,
+        root: [source_root.position, target_root.position],
+        root_radius: [source_root.radius, target_root.radius],
+        slow_down: options.slow_down,
+        parallel,
+        heights,
+        endpoint: EndpointError::default(),
+    })
+}
 
-    let arrays = [ChainArrays::of(sa), ChainArrays::of(ta)];
-    // Union chains: pairs, then wilting and growing chains.
-    let mut protos: Vec<Proto> = Vec::new();
-    // Union chain of each matched pair, per source chain (a handful each).
-    let mut pairs_of: Vec<Vec<(ChainId, u32)>> = vec![Vec::new(); sa.chains().len()];
-    let mut primary_src = vec![NONE; sa.chains().len()];
-    let mut primary_tgt = vec![NONE; ta.chains().len()];
-    for m in &correspondence.chains {
-        let idx = protos.len() as u32;
-        protos.push(Proto {
-            operation: m.operation,
-            source: Some(m.source),
-            target: Some(m.target),
-            parent: NONE,
-        });
-        pairs_of[m.source as usize].push((m.target, idx));
-        let (s_primary, t_primary) = match m.operation {
-            Operation::Split => (m.primary, true),
-            Operation::Merge => (true, m.primary),
-            _ => (true, true),
-        };
-        if s_primary || primary_src[m.source as usize] == NONE {
-            primary_src[m.source as usize] = idx;
+/// The union chains, parents first (by level), and which union chain
+/// stands for each input chain.
+struct UnionChains {
+    /// In parent-first order; `parent` indexes this order.
+    protos: Vec<Proto>,
+    /// Union chain of each matched pair, per source chain (a handful each).
+    pairs_of: Vec<Vec<(ChainId, u32)>>,
+    /// Per source chain (0) and target chain (1): the union chain that
+    /// carries its children and leaves.
+    primary: [Vec<u32>; 2],
+}
+
+impl UnionChains {
+    fn of(
+        correspondence: &Correspondence,
+        arrays: &[ChainArrays; 2],
+    ) -> Result<UnionChains, MorphError> {
+        let mut union = UnionChains::unordered(correspondence, arrays)?;
+        union.link_parents(arrays)?;
+        union.order_by_level()?;
+        Ok(union)
+    }
+
+    /// Pairs, then wilting and growing chains, in correspondence order.
+    fn unordered(
+        correspondence: &Correspondence,
+        arrays: &[ChainArrays; 2],
+    ) -> Result<UnionChains, MorphError> {
+        let mut protos: Vec<Proto> = Vec::new();
+        let mut pairs_of: Vec<Vec<(ChainId, u32)>> = vec![Vec::new(); arrays[0].len()];
+        let mut primary_src = vec![NONE; arrays[0].len()];
+        let mut primary_tgt = vec![NONE; arrays[1].len()];
+        for m in &correspondence.chains {
+            let idx = protos.len() as u32;
+            protos.push(Proto::new(m.operation, Some(m.source), Some(m.target)));
+            pairs_of[m.source as usize].push((m.target, idx));
+            let (s_primary, t_primary) = match m.operation {
+                Operation::Split => (m.primary, true),
+                Operation::Merge => (true, m.primary),
+                _ => (true, true),
+            };
+            if s_primary || primary_src[m.source as usize] == NONE {
+                primary_src[m.source as usize] = idx;
+            }
+            if t_primary || primary_tgt[m.target as usize] == NONE {
+                primary_tgt[m.target as usize] = idx;
+            }
         }
-        if t_primary || primary_tgt[m.target as usize] == NONE {
-            primary_tgt[m.target as usize] = idx;
+        for &c in &correspondence.wilting_chains {
+            primary_src[c as usize] = protos.len() as u32;
+            protos.push(Proto::new(Operation::Wilt, Some(c), None));
         }
+        for &c in &correspondence.growing_chains {
+            primary_tgt[c as usize] = protos.len() as u32;
+            protos.push(Proto::new(Operation::Grow, None, Some(c)));
+        }
+        if primary_src.contains(&NONE) || primary_tgt.contains(&NONE) {
+            return Err(internal("a chain has no union chain"));
+        }
+        Ok(UnionChains {
+            protos,
+            pairs_of,
+            primary: [primary_src, primary_tgt],
+        })
     }
-    for &c in &correspondence.wilting_chains {
-        primary_src[c as usize] = protos.len() as u32;
-        protos.push(Proto {
-            operation: Operation::Wilt,
-            source: Some(c),
-            target: None,
-            parent: NONE,
-        });
+
+    /// A union chain's parent: the union chain of its inputs' parents.
+    fn link_parents(&mut self, arrays: &[ChainArrays; 2]) -> Result<(), MorphError> {
+        let [primary_src, primary_tgt] = &self.primary;
+        for p in &mut self.protos {
+            let ps = p.source.and_then(|c| arrays[0].parent[c as usize]);
+            let pt = p.target.and_then(|c| arrays[1].parent[c as usize]);
+            p.parent = match (p.operation, ps, pt) {
+                (Operation::Wilt, Some(ps), _) => primary_src[ps as usize],
+                (Operation::Grow, _, Some(pt)) => primary_tgt[pt as usize],
+                (Operation::Wilt | Operation::Grow, None, None) => NONE,
+                (_, None, None) => NONE,
+                (_, Some(ps), Some(pt)) => pair_of(&self.pairs_of, ps, pt)
+                    .ok_or_else(|| internal("a matched chain's parents are not matched"))?,
+                _ => return Err(internal("a root chain is matched with a non-root chain")),
+            };
+        }
+        Ok(())
     }
-    for &c in &correspondence.growing_chains {
-        primary_tgt[c as usize] = protos.len() as u32;
-        protos.push(Proto {
-            operation: Operation::Grow,
-            source: None,
-            target: Some(c),
-            parent: NONE,
-        });
+
+    /// Sorts the chains parent-first by level (stable within a level) and
+    /// renumbers every reference to them.
+    fn order_by_level(&mut self) -> Result<(), MorphError> {
+        let depth = chain_depths(&self.protos)?;
+        let mut order: Vec<u32> = (0..self.protos.len() as u32).collect();
+        order.sort_by_key(|&i| (depth[i as usize], i));
+        let mut rank = vec![0u32; self.protos.len()];
+        for (r, &i) in order.iter().enumerate() {
+            rank[i as usize] = r as u32;
+        }
+        let remap = |i: u32| if i == NONE { NONE } else { rank[i as usize] };
+        for p in self.primary.iter_mut().flatten() {
+            *p = remap(*p);
+        }
+        for v in self.pairs_of.iter_mut().flatten() {
+            v.1 = remap(v.1);
+        }
+        self.protos = order
+            .iter()
+            .map(|&i| {
+                let p = &self.protos[i as usize];
+                Proto {
+                    parent: remap(p.parent),
+                    level: depth[i as usize],
+                    ..*p
+                }
+            })
+            .collect();
+        Ok(())
     }
-    if primary_src.contains(&NONE) || primary_tgt.contains(&NONE) {
-        return Err(internal("a chain has no union chain"));
-    }
-    for p in &mut protos {
-        let ps = p.source.and_then(|c| arrays[0].parent[c as usize]);
-        let pt = p.target.and_then(|c| arrays[1].parent[c as usize]);
-        p.parent = match (p.operation, ps, pt) {
-            (Operation::Wilt, Some(ps), _) => primary_src[ps as usize],
-            (Operation::Grow, _, Some(pt)) => primary_tgt[pt as usize],
-            (Operation::Wilt | Operation::Grow, None, None) => NONE,
-            (_, None, None) => NONE,
-            (_, Some(ps), Some(pt)) => pair_of(&pairs_of, ps, pt)
-                .ok_or_else(|| internal("a matched chain's parents are not matched"))?,
-            _ => return Err(internal("a root chain is matched with a non-root chain")),
-        };
-    }
-    // Parent-first order by level (stable within a level).
+}
+
+/// Depth of every union chain in the union chain tree (roots: 0).
+fn chain_depths(protos: &[Proto]) -> Result<Vec<u32>, MorphError> {
     let mut depth = vec![NONE; protos.len()];
     for i in 0..protos.len() {
         let mut chain = vec![i];
@@ -721,54 +865,74 @@ pub(crate) fn build(
             }
         }
     }
-    let mut order: Vec<u32> = (0..protos.len() as u32).collect();
-    order.sort_by_key(|&i| (depth[i as usize], i));
-    let mut rank = vec![0u32; protos.len()];
-    for (r, &i) in order.iter().enumerate() {
-        rank[i as usize] = r as u32;
-    }
-    let remap = |i: u32| if i == NONE { NONE } else { rank[i as usize] };
-    for p in primary_src.iter_mut().chain(primary_tgt.iter_mut()) {
-        *p = remap(*p);
-    }
-    for v in pairs_of.iter_mut().flatten() {
-        v.1 = remap(v.1);
+    Ok(depth)
+}
+
+/// Pass 1, sequential and cheap: sample parameters, node numbering and
+/// chain records, parents first.
+struct ChainLayout {
+    chain_plans: Vec<ChainPlan>,
+    chains: Vec<UnionChain>,
+    /// Per union chain: its source and target chain.
+    sides: Vec<[Option<ChainId>; 2]>,
+    sample_u: Vec<f32>,
+    sample_inv_span: Vec<f32>,
+    /// Per sample and side: the input node it is, if any.
+    origins: [Vec<Option<u32>>; 2],
+    node_origins: Vec<NodeOrigin>,
+    parents: Vec<Option<NodeId>>,
+    levels: Vec<Range<u32>>,
+}
+
+impl ChainLayout {
+    fn of(union: &UnionChains, arrays: &[ChainArrays; 2]) -> Result<ChainLayout, MorphError> {
+        let protos = &union.protos;
+        let bound: usize = protos
+            .iter()
+            .map(|p| {
+                p.source.map_or(0, |c| arrays[0].get(c).points.len())
+                    + p.target.map_or(0, |c| arrays[1].get(c).points.len())
+            })
+            .sum();
+        let mut node_origins = Vec::with_capacity(bound + 1);
+        node_origins.push(NodeOrigin {
+            source: Some(0),
+            target: Some(0),
+        });
+        let mut parents: Vec<Option<NodeId>> = Vec::with_capacity(bound + 1);
+        parents.push(None);
+        let mut layout = ChainLayout {
+            chain_plans: Vec::with_capacity(protos.len()),
+            chains: Vec::with_capacity(protos.len()),
+            sides: Vec::with_capacity(protos.len()),
+            sample_u: Vec::with_capacity(bound),
+            sample_inv_span: Vec::with_capacity(bound),
+            origins: [Vec::with_capacity(bound), Vec::with_capacity(bound)],
+            node_origins,
+            parents,
+            levels: Vec::new(),
+        };
+        let mut params = Params::default();
+        for proto in protos {
+            let cs = proto.source.map(|c| arrays[0].get(c));
+            let ct = proto.target.map(|c| arrays[1].get(c));
+            union_params(cs, ct, &mut params);
+            layout.push_chain(proto, [cs, ct], &params)?;
+        }
+        layout.levels = level_ranges(&layout.chains);
+        Ok(layout)
     }
 
-    // Pass 1, sequential and cheap: sample parameters, node numbering and
-    // chain records, parents first.
-    let mut chain_plans: Vec<ChainPlan> = Vec::with_capacity(protos.len());
-    let mut chains: Vec<UnionChain> = Vec::with_capacity(protos.len());
-    let mut sides: Vec<[Option<ChainId>; 2]> = Vec::with_capacity(protos.len());
-    let bound: usize = protos
-        .iter()
-        .map(|p| {
-            p.source.map_or(0, |c| arrays[0].get(c).points.len())
-                + p.target.map_or(0, |c| arrays[1].get(c).points.len())
-        })
-        .sum();
-    let mut sample_u: Vec<f32> = Vec::with_capacity(bound);
-    let mut sample_inv_span: Vec<f32> = Vec::with_capacity(bound);
-    let mut origins: [Vec<Option<u32>>; 2] = [Vec::with_capacity(bound), Vec::with_capacity(bound)];
-    let mut node_origins = Vec::with_capacity(bound + 1);
-    node_origins.push(NodeOrigin {
-        source: Some(0),
-        target: Some(0),
-    });
-    let mut parents: Vec<Option<NodeId>> = Vec::with_capacity(bound + 1);
-    parents.push(None);
-    let mut params = Params::default();
-    let root = [
-        s.tree.skeleton().node(0).position,
-        t.tree.skeleton().node(0).position,
-    ];
-    for &i in &order {
-        let proto = &protos[i as usize];
-        let cs = proto.source.map(|c| arrays[0].get(c));
-        let ct = proto.target.map(|c| arrays[1].get(c));
-        union_params(cs, ct, &mut params);
-        let (u, os, ot) = (&params.u, &params.origin[0], &params.origin[1]);
-        let first = sample_u.len() as u32;
+    /// Appends one union chain (its parent already laid out) with the
+    /// sample parameters `params`.
+    fn push_chain(
+        &mut self,
+        proto: &Proto,
+        [cs, ct]: [Option<ChainView>; 2],
+        params: &Params,
+    ) -> Result<(), MorphError> {
+        let u = &params.u;
+        let first = self.sample_u.len() as u32;
         let k = u.len();
         if first as usize + k + 1 > u32::MAX as usize {
             return Err(MorphError::TooLarge(format!(
@@ -776,47 +940,18 @@ pub(crate) fn build(
                 u32::MAX
             )));
         }
-        let parent = remap(proto.parent);
-        let parent_plan = (parent != NONE).then(|| chain_plans[parent as usize]);
+        let parent = proto.parent;
+        let parent_plan = (parent != NONE).then(|| self.chain_plans[parent as usize]);
         let p = [cs.map_or(0.0, |c| c.growth), ct.map_or(0.0, |c| c.growth)];
         let p = match proto.operation {
             Operation::Wilt => [p[0], p[0]],
             Operation::Grow => [p[1], p[1]],
             _ => p,
         };
-        sample_u.extend_from_slice(u);
-        sample_inv_span.extend(u.windows(2).map(|w| {
-            if w[1] > w[0] {
-                1.0 / (w[1] - w[0])
-            } else {
-                0.0
-            }
-        }));
-        sample_inv_span.push(0.0);
-        origins[0].extend_from_slice(os);
-        origins[1].extend_from_slice(ot);
-
-        // Nodes: the junction, then the samples.
+        self.push_samples(params);
         let node0 = 1 + first;
-        let junction_parent = match parent_plan {
-            None => 0,
-            Some(pp) => {
-                let (f, n) = (pp.first as usize, pp.len as usize);
-                let j = locate(&sample_u[f..f + n], p[0].min(p[1]));
-                1 + pp.first + j as u32
-            }
-        };
-        parents.push(Some(junction_parent));
-        for j in 1..k as u32 {
-            parents.push(Some(node0 + j - 1));
-        }
-        for j in 0..k {
-            node_origins.push(NodeOrigin {
-                source: cs.zip(os[j]).map(|(c, o)| c.nodes[o as usize]),
-                target: ct.zip(ot[j]).map(|(c, o)| c.nodes[o as usize]),
-            });
-        }
-        chain_plans.push(ChainPlan {
+        self.push_nodes(node0, parent_plan, p, [cs, ct], params);
+        self.chain_plans.push(ChainPlan {
             operation: proto.operation,
             first,
             len: k as u32,
@@ -827,7 +962,7 @@ pub(crate) fn build(
             parent_segments: match parent_plan {
                 None => [0, 0],
                 Some(pp) => {
-                    let pu = &sample_u[pp.first as usize..(pp.first + pp.len) as usize];
+                    let pu = &self.sample_u[pp.first as usize..(pp.first + pp.len) as usize];
                     let (a, b) = (locate(pu, p[0]) as u32, locate(pu, p[1]) as u32);
                     [a.min(b), a.max(b)]
                 }
@@ -837,16 +972,69 @@ pub(crate) fn build(
                 ct.map_or(0.0, |c| c.radii[0].min(c.radii[1])),
             ],
         });
-        sides.push([proto.source, proto.target]);
-        chains.push(UnionChain {
+        self.sides.push([proto.source, proto.target]);
+        self.chains.push(UnionChain {
             operation: proto.operation,
             source: proto.source,
             target: proto.target,
             parent: (parent != NONE).then_some(parent),
-            level: depth[i as usize],
+            level: proto.level,
             nodes: node0..node0 + k as u32,
         });
+        Ok(())
     }
+
+    /// A chain's sample parameters, inverse spans and input origins.
+    fn push_samples(&mut self, params: &Params) {
+        let u = &params.u;
+        self.sample_u.extend_from_slice(u);
+        self.sample_inv_span.extend(u.windows(2).map(|w| {
+            if w[1] > w[0] {
+                1.0 / (w[1] - w[0])
+            } else {
+                0.0
+            }
+        }));
+        self.sample_inv_span.push(0.0);
+        self.origins[0].extend_from_slice(&params.origin[0]);
+        self.origins[1].extend_from_slice(&params.origin[1]);
+    }
+
+    /// A chain's nodes from `node0` on: the junction (on the parent at the
+    /// nearer growth location, or the root), then one per sample.
+    fn push_nodes(
+        &mut self,
+        node0: u32,
+        parent_plan: Option<ChainPlan>,
+        p: [f32; 2],
+        [cs, ct]: [Option<ChainView>; 2],
+        params: &Params,
+    ) {
+        let (os, ot) = (&params.origin[0], &params.origin[1]);
+        let k = params.u.len();
+        let junction_parent = match parent_plan {
+            None => 0,
+            Some(pp) => {
+                let (f, n) = (pp.first as usize, pp.len as usize);
+                let j = locate(&self.sample_u[f..f + n], p[0].min(p[1]));
+                1 + pp.first + j as u32
+            }
+        };
+        self.parents.push(Some(junction_parent));
+        for j in 1..k as u32 {
+            self.parents.push(Some(node0 + j - 1));
+        }
+        for j in 0..k {
+            self.node_origins.push(NodeOrigin {
+                source: cs.zip(os[j]).map(|(c, o)| c.nodes[o as usize]),
+                target: ct.zip(ot[j]).map(|(c, o)| c.nodes[o as usize]),
+            });
+        }
+    }
+}
+
+/// The range of union chains on each level (`chains` sorted by level).
+fn level_ranges(chains: &[UnionChain]) -> Vec<Range<u32>> {
     let mut levels: Vec<Range<u32>> = Vec::new();
     for (i, c) in chains.iter().enumerate() {
         let l = c.level as usize;
@@ -855,19 +1043,26 @@ pub(crate) fn build(
         }
         levels[l].end = i as u32 + 1;
     }
+    levels
+}
 
-    // Pass 2, level by level with rayon: each side's samples, the anchor
-    // frame (the parent's frame at the growth location, exactly as the
-    // morpher will compute it) and the slerp coefficients.
-    let mut side_data = vec![SideData::default(); sample_u.len()];
-    let mut samples = vec![Sample::default(); sample_u.len()];
+/// Pass 2, level by level with rayon: each side's samples, the anchor
+/// frame (the parent's frame at the growth location, exactly as the
+/// morpher will compute it) and the slerp coefficients.
+fn sample_sides(
+    arrays: &[ChainArrays; 2],
+    layout: &ChainLayout,
+) -> Result<(Vec<SideData>, Vec<Sample>), MorphError> {
+    let chain_plans = &layout.chain_plans;
+    let mut side_data = vec![SideData::default(); layout.sample_u.len()];
+    let mut samples = vec![Sample::default(); layout.sample_u.len()];
     let cx = BuildContext {
-        arrays: &arrays,
-        sample_u: &sample_u,
-        sample_inv_span: &sample_inv_span,
-        origins: &origins,
+        arrays,
+        sample_u: &layout.sample_u,
+        sample_inv_span: &layout.sample_inv_span,
+        origins: &layout.origins,
     };
-    for level in &levels {
+    for level in &layout.levels {
         let r = level.start as usize..level.end as usize;
         let Some(first) = chain_plans.get(r.start) else {
             continue;
@@ -878,43 +1073,116 @@ pub(crate) fn build(
         build_chains(
             &cx,
             &chain_plans[r.clone()],
-            &sides[r],
+            &layout.sides[r],
             done,
             &mut rest[..b - a],
             &mut samples[a..b],
             a,
         )?;
     }
+    Ok((side_data, samples))
+}
 
-    // Leaves, in correspondence order (grouped by star, hence by host).
-    let src_materials = s.tree.materials().leaves.len() as u32;
-    let linear = matches!(options.leaf_morph, LeafMorph::RandomLinear { .. });
-    let facts = [leaf_facts(s, 0), leaf_facts(t, src_materials)];
-    // A leaf relative to a union chain's side: local offset and local
-    // orientation, exactly as the morpher reconstructs them.
-    let place = |sd: usize, leaf: &LeafFacts, host: u32| {
-        let c = &chain_plans[host as usize];
+/// One planned leaf: its plan, its topology, its hosts at t = 0 and 1 and
+/// its offset lengths there.
+type Planned = (LeafPlan, FrameLeafTopology, [u32; 2], [f32; 2]);
+
+/// Every leaf's [`Planned`] parts, in correspondence order.
+struct PlannedLeaves {
+    plans: Vec<LeafPlan>,
+    topology: Vec<FrameLeafTopology>,
+    hosts: Vec<[u32; 2]>,
+    offset_lens: Vec<[f32; 2]>,
+}
+
+/// Places the leaves on the laid-out union chains.
+struct LeafPlanner<'a> {
+    union: &'a UnionChains,
+    layout: &'a ChainLayout,
+    side_data: &'a [SideData],
+    /// The source's and the target's leaves.
+    facts: [Vec<LeafFacts>; 2],
+    /// Whether leaves move in straight lines (`LeafMorph::RandomLinear`)
+    /// rather than ride on their chains.
+    linear: bool,
+}
+
+impl LeafPlanner<'_> {
+    /// Plans every leaf of `matches` (grouped by star, hence by host), in
+    /// parallel.
+    fn plan_all(&self, matches: &[LeafMatch]) -> Result<PlannedLeaves, MorphError> {
+        // Filled in place (a vector of tuples would be one more big temporary).
+        let n = matches.len();
+        let mut out = PlannedLeaves {
+            plans: vec![
+                LeafPlan {
+                    mode: LeafMode::OnChain,
+                    host: 0,
+                    param: [0.0; 2],
+                    segments: [0; 2],
+                    position: [Vec3::ZERO; 2],
+                    orientation: Quat::IDENTITY,
+                    orientation_perp: Quat::IDENTITY,
+                    omega: 0.0,
+                    width: [0.0; 2],
+                    height: [0.0; 2],
+                };
+                n
+            ],
+            topology: vec![
+                FrameLeafTopology {
+                    node: 0,
+                    materials: [0; 2],
+                };
+                n
+            ],
+            hosts: vec![[0u32; 2]; n],
+            offset_lens: vec![[0.0f32; 2]; n],
+        };
+        out.plans
+            .par_iter_mut()
+            .zip(out.topology.par_iter_mut())
+            .zip(out.hosts.par_iter_mut())
+            .zip(out.offset_lens.par_iter_mut())
+            .zip(matches.par_iter())
+            .with_min_len(1024)
+            .try_for_each(|((((plan, topology), hosts), lens), m)| {
+                (*plan, *topology, *hosts, *lens) = self.plan(m)?;
+                Ok::<(), MorphError>(())
+            })?;
+        Ok(out)
+    }
+
+    /// The samples of union chain `host`: parameters, inverse spans and
+    /// side data.
+    fn host_samples(&self, host: u32) -> (&[f32], &[f32], &[SideData]) {
+        let c = &self.layout.chain_plans[host as usize];
         let r = c.first as usize..(c.first + c.len) as usize;
-        let (point, frame) = side_point_frame(
-            &sample_u[r.clone()],
-            &sample_inv_span[r.clone()],
-            &side_data[r],
-            sd,
-            leaf.param,
-        );
+        (
+            &self.layout.sample_u[r.clone()],
+            &self.layout.sample_inv_span[r.clone()],
+            &self.side_data[r],
+        )
+    }
+
+    /// A leaf relative to a union chain's side: local offset and local
+    /// orientation, exactly as the morpher reconstructs them.
+    fn place(&self, side: usize, leaf: &LeafFacts, host: u32) -> (Vec3, Quat) {
+        let (u, inv_span, data) = self.host_samples(host);
+        let (point, frame) = side_point_frame(u, inv_span, data, side, leaf.param);
         let inv = frame.inverse();
         (
             inv * (leaf.anchor - point),
             (inv * leaf.orientation).normalize(),
         )
-    };
-    type Planned = (LeafPlan, FrameLeafTopology, [u32; 2], [f32; 2]);
-    let plan_leaf = |m: &LeafMatch| -> Result<Planned, MorphError> {
-        let a = m.source.map(|l| &facts[0][l as usize]);
-        let b = m.target.map(|l| &facts[1][l as usize]);
-        let hosts = match (a, b) {
-            (Some(a), Some(b)) if !linear => {
-                let h = pair_of(&pairs_of, a.inner_lobe, b.inner_lobe)
+    }
+
+    /// The union chains a leaf is on at t = 0 and 1.
+    fn hosts(&self, a: Option<&LeafFacts>, b: Option<&LeafFacts>) -> Result<[u32; 2], MorphError> {
+        let [primary_src, primary_tgt] = &self.union.primary;
+        Ok(match (a, b) {
+            (Some(a), Some(b)) if !self.linear => {
+                let h = pair_of(&self.union.pairs_of, a.inner_lobe, b.inner_lobe)
                     .ok_or_else(|| internal("matched leaves on unmatched chains"))?;
                 [h, h]
             }
@@ -925,7 +1193,13 @@ pub(crate) fn build(
             (Some(a), None) => [primary_src[a.inner_lobe as usize]; 2],
             (None, Some(b)) => [primary_tgt[b.inner_lobe as usize]; 2],
             (None, None) => return Err(internal("an empty leaf match")),
-        };
+        })
+    }
+
+    fn plan(&self, m: &LeafMatch) -> Result<Planned, MorphError> {
+        let a = m.source.map(|l| &self.facts[0][l as usize]);
+        let b = m.target.map(|l| &self.facts[1][l as usize]);
+        let hosts = self.hosts(a, b)?;
         // The side that exists stands in for the missing one, at size 0.
         let (fa, fb) = match (a, b) {
             (Some(a), Some(b)) => (a, b),
@@ -934,146 +1208,100 @@ pub(crate) fn build(
             (None, None) => return Err(internal("an empty leaf match")),
         };
         let size = |x: Option<&LeafFacts>| x.map_or([0.0, 0.0], |x| [x.width, x.height]);
-        let (sa_, sb_) = (size(a), size(b));
-        let lens: [f32; 2];
-        let plan = if linear {
-            let (orientation_perp, omega) = arc_coefficients_q(fa.orientation, fb.orientation);
-            lens = [fa.offset_len, fb.offset_len];
-            LeafPlan {
-                mode: LeafMode::Linear,
-                host: hosts[0],
-                param: [fa.param, fb.param],
-                segments: [0, 0],
-                position: [fa.anchor, fb.anchor],
-                orientation: fa.orientation,
-                orientation_perp,
-                omega,
-                width: [sa_[0], sb_[0]],
-                height: [sa_[1], sb_[1]],
-            }
+        let sizes = [size(a), size(b)];
+        let (plan, lens) = if self.linear {
+            linear_plan(fa, fb, hosts[0], sizes)
         } else {
-            let host = hosts[0];
-            let hc = &chain_plans[host as usize];
-            let pa = a.map(|x| place(0, x, host));
-            let pb = b.map(|x| place(1, x, host));
-            let (la, lb) = match (pa, pb) {
-                (Some(x), Some(y)) => (x, y),
-                (Some(x), None) => (x, x),
-                (None, Some(y)) => (y, y),
-                (None, None) => return Err(internal("an empty leaf match")),
-            };
-            let (orientation_perp, omega) = arc_coefficients_q(la.1, lb.1);
-            // A leaf that grows or wilts keeps its place; on a chain that
-            // grows or wilts its offset from the axis scales with the chain.
-            let mut offset = [la.0, lb.0];
-            if hc.operation == Operation::Grow {
-                offset[0] = Vec3::ZERO;
-            }
-            if hc.operation == Operation::Wilt {
-                offset[1] = Vec3::ZERO;
-            }
-            lens = [offset[0].length(), offset[1].length()];
-            let hu = &sample_u[hc.first as usize..(hc.first + hc.len) as usize];
-            let (j0, j1) = (locate(hu, fa.param) as u32, locate(hu, fb.param) as u32);
-            LeafPlan {
-                mode: LeafMode::OnChain,
-                host,
-                param: [fa.param, fb.param],
-                segments: [j0.min(j1), j0.max(j1)],
-                position: offset,
-                orientation: la.1,
-                orientation_perp,
-                omega,
-                width: [sa_[0], sb_[0]],
-                height: [sa_[1], sb_[1]],
-            }
+            self.on_chain_plan(a, b, [fa, fb], hosts[0], sizes)?
         };
-        // The branch the leaf rides on: the host's segment holding its
-        // mid-morph parameter.
-        let c = &chain_plans[hosts[0] as usize];
+        let topology = self.riding_branch(&plan, hosts[0], [fa.material, fb.material]);
+        Ok((plan, topology, hosts, lens))
+    }
+
+    /// The plan of a leaf carried by its host chain (the paper), and its
+    /// offset lengths at t = 0 and 1.
+    fn on_chain_plan(
+        &self,
+        a: Option<&LeafFacts>,
+        b: Option<&LeafFacts>,
+        [fa, fb]: [&LeafFacts; 2],
+        host: u32,
+        [size_a, size_b]: [[f32; 2]; 2],
+    ) -> Result<(LeafPlan, [f32; 2]), MorphError> {
+        let hc = &self.layout.chain_plans[host as usize];
+        let pa = a.map(|x| self.place(0, x, host));
+        let pb = b.map(|x| self.place(1, x, host));
+        let (la, lb) = match (pa, pb) {
+            (Some(x), Some(y)) => (x, y),
+            (Some(x), None) => (x, x),
+            (None, Some(y)) => (y, y),
+            (None, None) => return Err(internal("an empty leaf match")),
+        };
+        let (orientation_perp, omega) = arc_coefficients_q(la.1, lb.1);
+        // A leaf that grows or wilts keeps its place; on a chain that
+        // grows or wilts its offset from the axis scales with the chain.
+        let mut offset = [la.0, lb.0];
+        if hc.operation == Operation::Grow {
+            offset[0] = Vec3::ZERO;
+        }
+        if hc.operation == Operation::Wilt {
+            offset[1] = Vec3::ZERO;
+        }
+        let lens = [offset[0].length(), offset[1].length()];
+        let hu = &self.layout.sample_u[hc.first as usize..(hc.first + hc.len) as usize];
+        let (j0, j1) = (locate(hu, fa.param) as u32, locate(hu, fb.param) as u32);
+        let plan = LeafPlan {
+            mode: LeafMode::OnChain,
+            host,
+            param: [fa.param, fb.param],
+            segments: [j0.min(j1), j0.max(j1)],
+            position: offset,
+            orientation: la.1,
+            orientation_perp,
+            omega,
+            width: [size_a[0], size_b[0]],
+            height: [size_a[1], size_b[1]],
+        };
+        Ok((plan, lens))
+    }
+
+    /// The branch the leaf rides on: the host's segment holding its
+    /// mid-morph parameter.
+    fn riding_branch(&self, plan: &LeafPlan, host: u32, materials: [u32; 2]) -> FrameLeafTopology {
+        let c = &self.layout.chain_plans[host as usize];
         let r = c.first as usize..(c.first + c.len) as usize;
         let mid = match plan.mode {
             LeafMode::OnChain => 0.5 * (plan.param[0] + plan.param[1]),
             LeafMode::Linear => plan.param[0],
         };
-        let j = locate(&sample_u[r], mid);
-        let topology = FrameLeafTopology {
-            node: 1 + c.first + j as u32 + 1,
-            materials: [fa.material, fb.material],
-        };
-        Ok((plan, topology, hosts, lens))
-    };
-    // Filled in place (a vector of tuples would be one more big temporary).
-    let n = correspondence.leaves.len();
-    let mut leaf_plans = vec![
-        LeafPlan {
-            mode: LeafMode::OnChain,
-            host: 0,
-            param: [0.0; 2],
-            segments: [0; 2],
-            position: [Vec3::ZERO; 2],
-            orientation: Quat::IDENTITY,
-            orientation_perp: Quat::IDENTITY,
-            omega: 0.0,
-            width: [0.0; 2],
-            height: [0.0; 2],
-        };
-        n
-    ];
-    let mut leaf_topology = vec![
+        let j = locate(&self.layout.sample_u[r], mid);
         FrameLeafTopology {
-            node: 0,
-            materials: [0; 2],
-        };
-        n
-    ];
-    let mut leaf_hosts = vec![[0u32; 2]; n];
-    let mut offset_lens = vec![[0.0f32; 2]; n];
-    leaf_plans
-        .par_iter_mut()
-        .zip(leaf_topology.par_iter_mut())
-        .zip(leaf_hosts.par_iter_mut())
-        .zip(offset_lens.par_iter_mut())
-        .zip(correspondence.leaves.par_iter())
-        .with_min_len(1024)
-        .try_for_each(|((((p, t), h), l), m)| {
-            (*p, *t, *h, *l) = plan_leaf(m)?;
-            Ok::<(), MorphError>(())
-        })?;
-    let mut leaf_materials = s.tree.materials().leaves.clone();
-    leaf_materials.extend(t.tree.materials().leaves.iter().cloned());
-    let topology = FrameTopology {
-        parents,
-        strands: Strands::from_polylines(chains.iter().map(|c| c.nodes.clone())),
-        leaves: leaf_topology,
-        leaf_materials,
-        bark: [
-            s.tree.materials().bark.clone(),
-            t.tree.materials().bark.clone(),
-        ],
+            node: 1 + c.first + j as u32 + 1,
+            materials,
+        }
+    }
+}
+
+/// The plan of a leaf moving in a straight line
+/// (`LeafMorph::RandomLinear`), and its offset lengths at t = 0 and 1.
+fn linear_plan(
+    fa: &LeafFacts,
+    fb: &LeafFacts,
+    host: u32,
+    [size_a, size_b]: [[f32; 2]; 2],
+) -> (LeafPlan, [f32; 2]) {
+    let (orientation_perp, omega) = arc_coefficients_q(fa.orientation, fb.orientation);
+    let plan = LeafPlan {
+        mode: LeafMode::Linear,
+        host,
+        param: [fa.param, fb.param],
+        segments: [0, 0],
+        position: [fa.anchor, fb.anchor],
+        orientation: fa.orientation,
+        orientation_perp,
+        omega,
+        width: [size_a[0], size_b[0]],
+        height: [size_a[1], size_b[1]],
     };
-    let parallel = topology.node_count() + leaf_plans.len() > options.parallel_threshold;
-    Ok(MorphPlan {
-        topology,
-        correspondence,
-        chains,
-        node_origins,
-        chain_plans,
-        levels,
-        samples,
-        sample_u,
-        sample_inv_span,
-        leaf_plans,
-        leaf_hosts,
-        leaf_offset_len: offset_lens,
-        root,
-        root_radius: [
-            s.tree.skeleton().node(0).radius,
-            t.tree.skeleton().node(0).radius,
-        ],
-        slow_down: options.slow_down,
-        parallel,
-        heights,
-        endpoint: EndpointError::default(),
-    })
+    (plan, [fa.offset_len, fb.offset_len])
 }

@@ -339,13 +339,7 @@ impl<'p> Morpher<'p> {
 
     /// A frame of the topology's size (the tree at t = 0).
     pub fn new_frame(&mut self) -> Frame {
-        let mut frame = Frame {
-            t: 0.0,
-            positions: Vec::new(),
-            radii: Vec::new(),
-            leaves: Vec::new(),
-            bark_blend: 0.0,
-        };
+        let mut frame = Frame::default();
         self.morph(0.0, &mut frame);
         frame
     }

@@ -117,225 +117,41 @@ impl SketchPlan {
         sketch: &Sketch,
         options: &SketchOptions,
     ) -> Result<SketchPlan, SketchError> {
-        options.validate()?;
-        let camera = view.camera()?;
-        let points = sketch.validate()?;
-        if options.fit == Fit::Crown && !sketch.closed {
-            return Err(SketchError::FitNeedsClosedSketch);
-        }
-        let skeleton = tree.skeleton();
-        let nodes = skeleton.nodes();
-        if tree.leaves().is_empty() {
-            return Err(SketchError::NoCrown);
-        }
-        if analysis.orders().len() != nodes.len() || analysis.leaves().len() != tree.leaves().len()
-        {
-            return Err(SketchError::AnalysisMismatch(format!(
-                "the analysis has {} nodes and {} leaves, the tree {} and {}",
-                analysis.orders().len(),
-                analysis.leaves().len(),
-                nodes.len(),
-                tree.leaves().len()
-            )));
-        }
-        let crown_lobe = analysis.crown();
-        if crown_lobe.hull.is_empty() {
-            return Err(SketchError::NoCrown);
-        }
-        if crown_lobe.hull.contains(camera.eye(), 0.0) {
-            return Err(SketchError::CameraInsideCrown);
-        }
-        // Everything must be in front of a perspective camera.
-        let near = 1e-4 * (view.target - view.eye).length();
-        let depth: Vec<f32> = nodes.iter().map(|n| camera.depth(n.position)).collect();
-        if camera.is_perspective() {
-            if let Some(i) = depth.iter().position(|&d| d.is_nan() || d <= near) {
-                return Err(SketchError::BehindCamera { node: i as u32 });
-            }
-            for leaf in tree.leaves() {
-                let anchor = tree.leaf_anchor(leaf);
-                let tip = anchor + leaf.orientation * Vec3::new(0.0, leaf.height, 0.0);
-                for p in [anchor, tip] {
-                    let d = camera.depth(p);
-                    if d.is_nan() || d <= near {
-                        return Err(SketchError::BehindCamera { node: leaf.branch });
-                    }
-                }
-            }
-            // Every leaf is in front, yet a crown hull corner is not: the
-            // eye is within a leaf's length of the foliage.
-            if crown_lobe
-                .hull
-                .vertices
-                .iter()
-                .any(|&v| camera.depth(v).is_nan() || camera.depth(v) <= near)
-            {
-                return Err(SketchError::CameraInsideCrown);
-            }
-        }
-        let s0 = mct::silhouette(&camera, &crown_lobe.hull).ok_or(SketchError::DegenerateCrown)?;
+        let (camera, points) = checked_inputs(tree, analysis, view, sketch, options)?;
+        let depth = checked_depths(tree, analysis, view, &camera)?;
+        let s0 =
+            mct::silhouette(&camera, &analysis.crown().hull).ok_or(SketchError::DegenerateCrown)?;
         let crown_size = polygon::diagonal(&s0.points);
         let crown_area = polygon::signed_area(&s0.points);
         if !(crown_size > 0.0 && crown_area > 1e-9 * crown_size * crown_size) {
             return Err(SketchError::DegenerateCrown);
         }
-
-        // The sketched crown and the correspondence.
-        let points = match options.fit {
-            Fit::Crown => fit_to(&points, &s0.points)?,
-            Fit::None => points,
-        };
-        let tolerance = 1e-3 * crown_size;
-        let crown = if sketch.closed {
-            let points = polygon::simplify_closed(&points, tolerance);
-            let overlap = prune::to_geo(&points)
-                .intersection(&prune::to_geo(&s0.points))
-                .unsigned_area();
-            if overlap <= 0.0 {
-                return Err(SketchError::SketchMissesCrown);
-            }
-            correspondence::closed(&s0.points, &points, options.crown_samples)
-        } else {
-            let points = polygon::simplify_open(&points, tolerance);
-            correspondence::open(
-                &s0.points,
-                &points,
-                options.crown_samples,
-                options.open_snap_distance * crown_size,
-            )?
-        };
+        let crown = crown_correspondence(points, &s0.points, sketch, options, crown_size)?;
         let crown_delta: Vec<Vec2> = crown
             .target
             .iter()
             .zip(&crown.source)
             .map(|(&t, &s)| t - s)
             .collect();
-        let crown_hull_vertex: Vec<u32> = crown
-            .source_vertex
-            .iter()
-            .map(|v| v.map_or(NONE, |i| s0.hull_vertex[i as usize]))
-            .collect();
-
-        // The cage tree.
-        let chains = analysis.chains();
-        let ndc: Vec<Vec2> = nodes.iter().map(|n| camera.project(n.position).0).collect();
-        let multiscale = options.method == Method::Multiscale;
-        let mut mct = mct::build(
+        let mct = cage_tree(
+            tree,
             analysis,
             &camera,
-            &crown.source,
-            crown_hull_vertex,
-            &s0.points,
-            &ndc,
-            options.min_cage_area * crown_area,
-            multiscale,
-        );
-        let tau = options.coverage_threshold * crown_size;
-        if multiscale && options.adaptive {
-            adapt::adapt(
-                &mut mct,
-                &crown_delta,
-                tau,
-                options.adapt_reach * crown_size,
-            )?;
-        }
-        if multiscale && options.prune {
-            let mut disp = Vec::new();
-            mct.displacements(&crown_delta, 1.0, &mut disp);
-            let finals: Vec<Vec2> = mct
-                .cages
-                .iter()
-                .flat_map(|c| c.rest.iter())
-                .zip(&disp)
-                .map(|(&r, &d)| r + d)
-                .collect();
-            prune::prune(
-                &mut mct,
-                &finals,
-                &crown.target,
-                options.prune_ratio,
-                options.inside_ratio,
-            );
-        }
-
-        // What wilts.
-        let mut chain_wilts = vec![false; chains.len()];
-        let mut leaf_wilts = vec![false; tree.leaves().len()];
-        for cage in &mct.cages {
-            if !cage.pruned {
-                continue;
-            }
-            match cage.kind {
-                CageKind::Crown => {}
-                CageKind::GroupOuter => {
-                    if let Some(g) = cage.group {
-                        for &c in &analysis.group(g).chains {
-                            chain_wilts[c as usize] = true;
-                        }
-                    }
-                }
-                CageKind::Outer => {
-                    if let Some(c) = cage.chain {
-                        chain_wilts[c as usize] = true;
-                    }
-                }
-                CageKind::Inner => {
-                    if let Some(c) = cage.chain {
-                        for &l in &analysis.chain(c).inner_lobe.leaves {
-                            leaf_wilts[l as usize] = true;
-                        }
-                    }
-                }
-            }
-        }
-        for c in chains {
-            if let Some(p) = c.parent
-                && chain_wilts[p as usize]
-            {
-                chain_wilts[c.id as usize] = true;
-            }
-        }
-        let mut wilts = Vec::new();
-        let mut wilt_of_chain = vec![NONE; chains.len()];
-        for c in chains {
-            if !chain_wilts[c.id as usize] {
-                continue;
-            }
-            let w = match c.parent.map(|p| wilt_of_chain[p as usize]) {
-                Some(w) if w != NONE => w,
-                _ => {
-                    wilts.push(Wilt {
-                        junction: c.junction(),
-                        nodes: Vec::new(),
-                    });
-                    (wilts.len() - 1) as u32
-                }
-            };
-            wilt_of_chain[c.id as usize] = w;
-            wilts[w as usize].nodes.extend_from_slice(&c.nodes[1..]);
-        }
-        for (l, leaf) in tree.leaves().iter().enumerate() {
-            if let Some(c) = analysis.chain_of_node(leaf.branch)
-                && chain_wilts[c as usize]
-            {
-                leaf_wilts[l] = true;
-            }
-        }
-
-        let mut node_wilts = vec![false; nodes.len()];
-        for w in &wilts {
-            for &n in &w.nodes {
-                node_wilts[n as usize] = true;
-            }
-        }
+            &crown,
+            &crown_delta,
+            &s0,
+            options,
+            [crown_size, crown_area],
+        )?;
+        let wilting = Wilting::of(tree, analysis, &mct);
         let levels = chain_levels(tree, analysis, &mct.control, options.node_weight)?;
         let lobes = crate::lobes::LobeSource::new(analysis, &mct, &camera);
-        let rest = Frame::of_tree(tree);
+        let chains = analysis.chains();
         Ok(SketchPlan {
             options: options.clone(),
             camera,
             topology: FrameTopology::of_tree(tree),
-            rest,
+            rest: Frame::of_tree(tree),
             depth,
             leaf_t: tree.leaves().iter().map(|l| l.t).collect(),
             leaf_offset: tree.leaves().iter().map(|l| l.offset).collect(),
@@ -351,24 +167,14 @@ impl SketchPlan {
                 .iter()
                 .flat_map(|c| c.nodes.iter().copied())
                 .collect(),
-            chain_ranges: {
-                let mut start = 0u32;
-                chains
-                    .iter()
-                    .map(|c| {
-                        let r = (start, start + c.nodes.len() as u32);
-                        start = r.1;
-                        r
-                    })
-                    .collect()
-            },
+            chain_ranges: chain_ranges(chains),
             chain_parent: chains.iter().map(|c| c.parent).collect(),
             leaf_chain: analysis.leaves().iter().map(|l| l.grows_on).collect(),
             height: tree.stats().height.max(1e-6),
-            wilts,
-            node_wilts,
-            leaf_wilts,
-            chain_wilts,
+            wilts: wilting.wilts,
+            node_wilts: wilting.nodes,
+            leaf_wilts: wilting.leaves,
+            chain_wilts: wilting.chains,
             lobes,
         })
     }
@@ -444,6 +250,295 @@ impl SketchPlan {
     pub fn wilting_nodes(&self) -> &[bool] {
         &self.node_wilts
     }
+}
+
+/// The options, the view's camera and the sketch's points, checked in
+/// that order, and whether the tree and its analysis agree.
+fn checked_inputs(
+    tree: &Tree,
+    analysis: &Analysis,
+    view: &View,
+    sketch: &Sketch,
+    options: &SketchOptions,
+) -> Result<(Camera, Vec<Vec2>), SketchError> {
+    options.validate()?;
+    let camera = view.camera()?;
+    let points = sketch.validate()?;
+    if options.fit == Fit::Crown && !sketch.closed {
+        return Err(SketchError::FitNeedsClosedSketch);
+    }
+    let nodes = tree.skeleton().nodes();
+    if tree.leaves().is_empty() {
+        return Err(SketchError::NoCrown);
+    }
+    if analysis.orders().len() != nodes.len() || analysis.leaves().len() != tree.leaves().len() {
+        return Err(SketchError::AnalysisMismatch(format!(
+            "the analysis has {} nodes and {} leaves, the tree {} and {}",
+            analysis.orders().len(),
+            analysis.leaves().len(),
+            nodes.len(),
+            tree.leaves().len()
+        )));
+    }
+    Ok((camera, points))
+}
+
+/// Every node's depth from the camera, after checking that the camera is
+/// outside the crown and, for a perspective camera, that every node, leaf
+/// and crown corner is in front of it.
+fn checked_depths(
+    tree: &Tree,
+    analysis: &Analysis,
+    view: &View,
+    camera: &Camera,
+) -> Result<Vec<f32>, SketchError> {
+    let crown_lobe = analysis.crown();
+    if crown_lobe.hull.is_empty() {
+        return Err(SketchError::NoCrown);
+    }
+    if crown_lobe.hull.contains(camera.eye(), 0.0) {
+        return Err(SketchError::CameraInsideCrown);
+    }
+    // Everything must be in front of a perspective camera.
+    let near = 1e-4 * (view.target - view.eye).length();
+    let nodes = tree.skeleton().nodes();
+    let depth: Vec<f32> = nodes.iter().map(|n| camera.depth(n.position)).collect();
+    if camera.is_perspective() {
+        if let Some(i) = depth.iter().position(|&d| d.is_nan() || d <= near) {
+            return Err(SketchError::BehindCamera { node: i as u32 });
+        }
+        for leaf in tree.leaves() {
+            let anchor = tree.leaf_anchor(leaf);
+            let tip = anchor + leaf.orientation * Vec3::new(0.0, leaf.height, 0.0);
+            for p in [anchor, tip] {
+                let d = camera.depth(p);
+                if d.is_nan() || d <= near {
+                    return Err(SketchError::BehindCamera { node: leaf.branch });
+                }
+            }
+        }
+        // Every leaf is in front, yet a crown hull corner is not: the
+        // eye is within a leaf's length of the foliage.
+        if crown_lobe
+            .hull
+            .vertices
+            .iter()
+            .any(|&v| camera.depth(v).is_nan() || camera.depth(v) <= near)
+        {
+            return Err(SketchError::CameraInsideCrown);
+        }
+    }
+    Ok(depth)
+}
+
+/// The sketched crown (fitted when asked) and its correspondence with the
+/// crown silhouette `s0`.
+fn crown_correspondence(
+    points: Vec<Vec2>,
+    s0: &[Vec2],
+    sketch: &Sketch,
+    options: &SketchOptions,
+    crown_size: f32,
+) -> Result<Correspondence, SketchError> {
+    let points = match options.fit {
+        Fit::Crown => fit_to(&points, s0)?,
+        Fit::None => points,
+    };
+    let tolerance = 1e-3 * crown_size;
+    if sketch.closed {
+        let points = polygon::simplify_closed(&points, tolerance);
+        let overlap = prune::to_geo(&points)
+            .intersection(&prune::to_geo(s0))
+            .unsigned_area();
+        if overlap <= 0.0 {
+            return Err(SketchError::SketchMissesCrown);
+        }
+        Ok(correspondence::closed(s0, &points, options.crown_samples))
+    } else {
+        let points = polygon::simplify_open(&points, tolerance);
+        correspondence::open(
+            s0,
+            &points,
+            options.crown_samples,
+            options.open_snap_distance * crown_size,
+        )
+    }
+}
+
+/// The multiscale cage tree, self-adapted and pruned as the options ask.
+#[allow(clippy::too_many_arguments)]
+fn cage_tree(
+    tree: &Tree,
+    analysis: &Analysis,
+    camera: &Camera,
+    crown: &Correspondence,
+    crown_delta: &[Vec2],
+    s0: &mct::Silhouette,
+    options: &SketchOptions,
+    [crown_size, crown_area]: [f32; 2],
+) -> Result<Mct, SketchError> {
+    let crown_hull_vertex: Vec<u32> = crown
+        .source_vertex
+        .iter()
+        .map(|v| v.map_or(NONE, |i| s0.hull_vertex[i as usize]))
+        .collect();
+    let ndc: Vec<Vec2> = tree
+        .skeleton()
+        .nodes()
+        .iter()
+        .map(|n| camera.project(n.position).0)
+        .collect();
+    let multiscale = options.method == Method::Multiscale;
+    let mut mct = mct::build(
+        analysis,
+        camera,
+        &crown.source,
+        crown_hull_vertex,
+        &s0.points,
+        &ndc,
+        options.min_cage_area * crown_area,
+        multiscale,
+    );
+    let tau = options.coverage_threshold * crown_size;
+    if multiscale && options.adaptive {
+        adapt::adapt(&mut mct, crown_delta, tau, options.adapt_reach * crown_size)?;
+    }
+    if multiscale && options.prune {
+        let mut disp = Vec::new();
+        mct.displacements(crown_delta, 1.0, &mut disp);
+        let finals: Vec<Vec2> = mct
+            .cages
+            .iter()
+            .flat_map(|c| c.rest.iter())
+            .zip(&disp)
+            .map(|(&r, &d)| r + d)
+            .collect();
+        prune::prune(
+            &mut mct,
+            &finals,
+            &crown.target,
+            options.prune_ratio,
+            options.inside_ratio,
+        );
+    }
+    Ok(mct)
+}
+
+/// What wilts: the parts of the tree whose cages were pruned.
+struct Wilting {
+    wilts: Vec<Wilt>,
+    /// Per chain, leaf and node: whether it wilts.
+    chains: Vec<bool>,
+    leaves: Vec<bool>,
+    nodes: Vec<bool>,
+}
+
+impl Wilting {
+    fn of(tree: &Tree, analysis: &Analysis, mct: &Mct) -> Wilting {
+        let chains = analysis.chains();
+        let (mut chain_wilts, mut leaf_wilts) = pruned_parts(tree, analysis, mct);
+        for c in chains {
+            if let Some(p) = c.parent
+                && chain_wilts[p as usize]
+            {
+                chain_wilts[c.id as usize] = true;
+            }
+        }
+        let wilts = wilt_subtrees(analysis, &chain_wilts);
+        for (l, leaf) in tree.leaves().iter().enumerate() {
+            if let Some(c) = analysis.chain_of_node(leaf.branch)
+                && chain_wilts[c as usize]
+            {
+                leaf_wilts[l] = true;
+            }
+        }
+        let mut node_wilts = vec![false; tree.skeleton().nodes().len()];
+        for w in &wilts {
+            for &n in &w.nodes {
+                node_wilts[n as usize] = true;
+            }
+        }
+        Wilting {
+            wilts,
+            chains: chain_wilts,
+            leaves: leaf_wilts,
+            nodes: node_wilts,
+        }
+    }
+}
+
+/// The chains and leaves of pruned cages (before wilting spreads to
+/// their descendants).
+fn pruned_parts(tree: &Tree, analysis: &Analysis, mct: &Mct) -> (Vec<bool>, Vec<bool>) {
+    let mut chain_wilts = vec![false; analysis.chains().len()];
+    let mut leaf_wilts = vec![false; tree.leaves().len()];
+    for cage in &mct.cages {
+        if !cage.pruned {
+            continue;
+        }
+        match cage.kind {
+            CageKind::Crown => {}
+            CageKind::GroupOuter => {
+                if let Some(g) = cage.group {
+                    for &c in &analysis.group(g).chains {
+                        chain_wilts[c as usize] = true;
+                    }
+                }
+            }
+            CageKind::Outer => {
+                if let Some(c) = cage.chain {
+                    chain_wilts[c as usize] = true;
+                }
+            }
+            CageKind::Inner => {
+                if let Some(c) = cage.chain {
+                    for &l in &analysis.chain(c).inner_lobe.leaves {
+                        leaf_wilts[l as usize] = true;
+                    }
+                }
+            }
+        }
+    }
+    (chain_wilts, leaf_wilts)
+}
+
+/// The wilting subtrees: each wilting chain joins its parent's subtree,
+/// or starts one at its junction.
+fn wilt_subtrees(analysis: &Analysis, chain_wilts: &[bool]) -> Vec<Wilt> {
+    let chains = analysis.chains();
+    let mut wilts = Vec::new();
+    let mut wilt_of_chain = vec![NONE; chains.len()];
+    for c in chains {
+        if !chain_wilts[c.id as usize] {
+            continue;
+        }
+        let w = match c.parent.map(|p| wilt_of_chain[p as usize]) {
+            Some(w) if w != NONE => w,
+            _ => {
+                wilts.push(Wilt {
+                    junction: c.junction(),
+                    nodes: Vec::new(),
+                });
+                (wilts.len() - 1) as u32
+            }
+        };
+        wilt_of_chain[c.id as usize] = w;
+        wilts[w as usize].nodes.extend_from_slice(&c.nodes[1..]);
+    }
+    wilts
+}
+
+/// Each chain's range in the flat list of every chain's nodes.
+fn chain_ranges(chains: &[treemorph_analysis::Chain]) -> Vec<(u32, u32)> {
+    let mut start = 0u32;
+    chains
+        .iter()
+        .map(|c| {
+            let r = (start, start + c.nodes.len() as u32);
+            start = r.1;
+            r
+        })
+        .collect()
 }
 
 /// The chains' Laplacian systems (Eq. 1 on each chain polyline), one per

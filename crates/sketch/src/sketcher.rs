@@ -210,13 +210,7 @@ impl<'p> Sketcher<'p> {
 
     /// A new frame at time `t`.
     pub fn frame(&mut self, t: f32) -> Frame {
-        let mut frame = Frame {
-            t: 0.0,
-            positions: Vec::new(),
-            radii: Vec::new(),
-            leaves: Vec::new(),
-            bark_blend: 0.0,
-        };
+        let mut frame = Frame::default();
         self.deform(t, &mut frame);
         frame
     }

@@ -188,7 +188,9 @@ pub struct FrameLeaf {
 }
 
 /// One in-between tree: the varying part of a frame sequence.
-#[derive(Clone, Debug, PartialEq)]
+/// `Frame::default()` is an empty frame at t = 0, a buffer for a morpher
+/// or sketcher to fill.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Frame {
     /// Animation time in [0, 1].
     pub t: f32,

@@ -1,0 +1,168 @@
+//! A spatial hash of triangles for exact range queries.
+//!
+//! Each triangle is registered in every cell its bounding box overlaps, so
+//! a triangle within distance `r` of a point has a point in one of the
+//! cells overlapping the query box `[p − r, p + r]` and is found there:
+//! range queries are exact, whatever the cell size (which only sets the
+//! cost). Cells hash into a power-of-two table; colliding cells share a
+//! bucket, which costs extra distance tests but never a miss. Triangles
+//! that would cover more than [`MAX_CELLS_PER_TRIANGLE`] cells go on a
+//! short list every query visits. The table is built with a counting sort
+//! into buffers that are kept between frames.
+
+use glam::{IVec3, Vec3};
+
+/// Triangles covering more cells than this are kept in a list that every
+/// query scans, so one huge triangle cannot flood the table.
+pub const MAX_CELLS_PER_TRIANGLE: i64 = 512;
+
+/// The spatial hash (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct TriangleGrid {
+    cell: f32,
+    mask: u32,
+    /// `starts[b]..starts[b + 1]` are bucket `b`'s entries.
+    starts: Vec<u32>,
+    entries: Vec<u32>,
+    big: Vec<u32>,
+    /// Per triangle, the query that last visited it (deduplication).
+    stamps: Vec<u32>,
+    stamp: u32,
+    /// Scratch: fill cursors of the counting sort.
+    fill: Vec<u32>,
+}
+
+fn hash(c: IVec3) -> u32 {
+    (c.x as u32).wrapping_mul(0x9E37_79B1)
+        ^ (c.y as u32).wrapping_mul(0x85EB_CA77)
+        ^ (c.z as u32).wrapping_mul(0xC2B2_AE3D)
+}
+
+/// Calls `f` on every cell of the inclusive range `(a, b)`.
+fn for_each_cell((a, b): (IVec3, IVec3), mut f: impl FnMut(IVec3)) {
+    for z in a.z..=b.z {
+        for y in a.y..=b.y {
+            for x in a.x..=b.x {
+                f(IVec3::new(x, y, z));
+            }
+        }
+    }
+}
+
+impl TriangleGrid {
+    fn cell_of(&self, p: Vec3) -> IVec3 {
+        (p / self.cell).floor().as_ivec3()
+    }
+
+    fn cells(&self, lo: Vec3, hi: Vec3) -> (IVec3, IVec3) {
+        (self.cell_of(lo), self.cell_of(hi))
+    }
+
+    fn span((lo, hi): (IVec3, IVec3)) -> i64 {
+        let d = (hi - lo).as_i64vec3() + 1;
+        d.x * d.y * d.z
+    }
+
+    /// Rebuilds the table over `boxes` (the triangles' bounds, indexed by
+    /// triangle) with cubic cells of side `cell` (positive, finite).
+    pub fn build(&mut self, boxes: &[(Vec3, Vec3)], cell: f32) {
+        self.cell = cell;
+        self.big.clear();
+        let mut total = 0usize;
+        for (i, &(lo, hi)) in boxes.iter().enumerate() {
+            let n = Self::span(self.cells(lo, hi));
+            if n > MAX_CELLS_PER_TRIANGLE {
+                self.big.push(i as u32);
+            } else {
+                total += n as usize;
+            }
+        }
+        let size = (total.max(boxes.len()) * 2).max(1024).next_power_of_two();
+        self.mask = (size - 1) as u32;
+        self.starts.clear();
+        self.starts.resize(size + 1, 0);
+        let mut big = self.big.iter().peekable();
+        for (i, &(lo, hi)) in boxes.iter().enumerate() {
+            if big.peek() == Some(&&(i as u32)) {
+                big.next();
+                continue;
+            }
+            let mask = self.mask;
+            for_each_cell(self.cells(lo, hi), |c| {
+                self.starts[(hash(c) & mask) as usize + 1] += 1;
+            });
+        }
+        for b in 0..size {
+            self.starts[b + 1] += self.starts[b];
+        }
+        self.entries.clear();
+        self.entries.resize(total, 0);
+        // Fill from the back of each bucket, reusing `starts` as cursors
+        // that end at each bucket's start.
+        self.fill.clear();
+        self.fill.extend_from_slice(&self.starts[1..]);
+        let mut big = self.big.iter().peekable();
+        for (i, &(lo, hi)) in boxes.iter().enumerate() {
+            if big.peek() == Some(&&(i as u32)) {
+                big.next();
+                continue;
+            }
+            let mask = self.mask;
+            for_each_cell(self.cells(lo, hi), |c| {
+                let bucket = (hash(c) & mask) as usize;
+                self.fill[bucket] -= 1;
+                self.entries[self.fill[bucket] as usize] = i as u32;
+            });
+        }
+        self.stamps.clear();
+        self.stamps.resize(boxes.len(), 0);
+        self.stamp = 0;
+    }
+
+    /// Calls `visit` once for every triangle that may come within the box
+    /// `[lo, hi]` (every one that does, and some that do not) until it
+    /// returns `true`; returns whether it did.
+    pub fn any_near(&mut self, lo: Vec3, hi: Vec3, mut visit: impl FnMut(u32) -> bool) -> bool {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.stamps.fill(0);
+            self.stamp = 1;
+        }
+        let stamp = self.stamp;
+        for &t in &self.big {
+            if visit(t) {
+                return true;
+            }
+        }
+        let (a, b) = self.cells(lo, hi);
+        if Self::span((a, b)) > (self.starts.len() as i64) {
+            // A query box larger than the table: every bucket once.
+            for &t in &self.entries {
+                if self.stamps[t as usize] != stamp {
+                    self.stamps[t as usize] = stamp;
+                    if visit(t) {
+                        return true;
+                    }
+                }
+            }
+            return false;
+        }
+        for z in a.z..=b.z {
+            for y in a.y..=b.y {
+                for x in a.x..=b.x {
+                    let bucket = (hash(IVec3::new(x, y, z)) & self.mask) as usize;
+                    let (s, e) = (self.starts[bucket], self.starts[bucket + 1]);
+                    for &t in &self.entries[s as usize..e as usize] {
+                        if self.stamps[t as usize] != stamp {
+                            self.stamps[t as usize] = stamp;
+                            if visit(t) {
+                                return true;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        false
+    }
+}

@@ -1,0 +1,246 @@
+use glam::Vec3;
+use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
+use treemorph_tree::{Frame, FrameTopology};
+
+use crate::{LeafLayout, MeshView, Plausibility, PlausibilityOptions, read_glb};
+
+/// A closed tube of `sides` sides and radius `r` from `a` up to `b`
+/// (vertical axis), appended to `positions`/`indices`.
+fn tube(positions: &mut Vec<Vec3>, indices: &mut Vec<u32>, a: Vec3, b: Vec3, r: f32) {
+    let sides = 8u32;
+    let base = positions.len() as u32;
+    for end in [a, b] {
+        for j in 0..sides {
+            let t = j as f32 / sides as f32 * std::f32::consts::TAU;
+            positions.push(end + Vec3::new(t.cos(), 0.0, t.sin()) * r);
+        }
+    }
+    for j in 0..sides {
+        let (p, q) = (base + j, base + (j + 1) % sides);
+        indices.extend_from_slice(&[p, q, q + sides, p, q + sides, p + sides]);
+    }
+    // Caps.
+    positions.extend([a, b]);
+    let (ca, cb) = (base + 2 * sides, base + 2 * sides + 1);
+    for j in 0..sides {
+        let (p, q) = (base + j, base + (j + 1) % sides);
+        indices.extend_from_slice(&[q, p, ca, p + sides, q + sides, cb]);
+    }
+}
+
+/// A square leaf of side `s` whose base corner sits at `at`, in the XY plane.
+fn leaf(positions: &mut Vec<Vec3>, indices: &mut Vec<u32>, at: Vec3, s: f32) {
+    let base = positions.len() as u32;
+    positions.extend([
+        at,
+        at + Vec3::X * s,
+        at + Vec3::new(s, s, 0.0),
+        at + Vec3::Y * s,
+    ]);
+    indices.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+}
+
+struct Scene {
+    bp: Vec<Vec3>,
+    bi: Vec<u32>,
+    lp: Vec<Vec3>,
+    li: Vec<u32>,
+}
+
+impl Scene {
+    /// A 10 m trunk of radius 0.2 m.
+    fn trunk() -> Scene {
+        let (mut bp, mut bi) = (Vec::new(), Vec::new());
+        tube(&mut bp, &mut bi, Vec3::ZERO, Vec3::Y * 10.0, 0.2);
+        Scene::of(bp, bi)
+    }
+
+    /// Branches only.
+    fn of(bp: Vec<Vec3>, bi: Vec<u32>) -> Scene {
+        Scene {
+            bp,
+            bi,
+            lp: Vec::new(),
+            li: Vec::new(),
+        }
+    }
+
+    fn view(&self) -> MeshView<'_> {
+        MeshView {
+            branch_positions: &self.bp,
+            branch_indices: &self.bi,
+            leaf_positions: &self.lp,
+            leaf_indices: &self.li,
+            leaves: LeafLayout::Uniform {
+                vertices_per_leaf: 4,
+            },
+        }
+    }
+}
+
+#[test]
+fn a_leaf_on_the_tube_does_not_float() {
+    let mut s = Scene::trunk();
+    leaf(&mut s.lp, &mut s.li, Vec3::new(0.2, 5.0, 0.0), 0.1);
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!((r.leaves, r.floating_leaves, r.worst_leaf_gap), (1, 0, 0.0));
+    assert_eq!((r.branch_pieces, r.floating_branches), (1, 0));
+    assert_eq!(r.height, 10.0);
+}
+
+#[test]
+fn the_same_leaf_moved_away_floats_by_its_exact_gap() {
+    let mut s = Scene::trunk();
+    // Allowed: half the leaf's size (its diagonal, 0.1·√2) plus 0.5 % of 10 m.
+    let allowed = 0.05 * 2f32.sqrt() + 0.05;
+    for (dx, floats) in [(allowed - 0.01, false), (allowed + 0.01, true), (1.0, true)] {
+        s.lp.clear();
+        s.li.clear();
+        leaf(&mut s.lp, &mut s.li, Vec3::new(0.2 + dx, 5.0, 0.0), 0.1);
+        let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+        assert_eq!(r.floating_leaves, u32::from(floats), "dx {dx}");
+        if floats {
+            // The tube is an octagon: its flat face at angle 0 is a vertex,
+            // so the nearest point is that vertex column.
+            assert!(
+                (r.worst_leaf_gap - dx).abs() < 1e-4,
+                "{} vs {dx}",
+                r.worst_leaf_gap
+            );
+            assert_eq!(r.floating[0].leaf, 0);
+            assert!((r.floating[0].allowed - allowed).abs() < 1e-5);
+        }
+    }
+    // Without exact gaps: the count, no distance.
+    let opts = PlausibilityOptions::default().with_exact_gaps(false);
+    let r = Plausibility::of(&s.view(), &opts).unwrap();
+    assert_eq!(r.floating_leaves, 1);
+    assert!(r.worst_leaf_gap.is_nan());
+}
+
+#[test]
+fn zero_size_leaves_are_skipped() {
+    let mut s = Scene::trunk();
+    leaf(&mut s.lp, &mut s.li, Vec3::new(3.0, 5.0, 0.0), 0.0);
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!((r.leaves, r.floating_leaves), (0, 0));
+}
+
+#[test]
+fn two_tubes_apart_give_one_floating_piece() {
+    let mut s = Scene::trunk();
+    // 0.5 m from the trunk's surface: beyond 2 % of 10 m.
+    tube(
+        &mut s.bp,
+        &mut s.bi,
+        Vec3::new(0.8, 4.0, 0.0),
+        Vec3::new(0.8, 6.0, 0.0),
+        0.1,
+    );
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!((r.branch_pieces, r.floating_branches), (2, 1));
+    let f = r.floating_pieces[0];
+    assert_eq!(f.first_vertex, 18);
+    assert!((f.lowest.y - 4.0).abs() < 1e-6);
+    // 0.15 m away: within the reach.
+    let mut s = Scene::trunk();
+    tube(
+        &mut s.bp,
+        &mut s.bi,
+        Vec3::new(0.45, 4.0, 0.0),
+        Vec3::new(0.45, 6.0, 0.0),
+        0.1,
+    );
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!(r.floating_branches, 0);
+}
+
+#[test]
+fn the_root_piece_is_exempt() {
+    // The lower piece is the root even though it is the smaller one.
+    let (mut bp, mut bi) = (Vec::new(), Vec::new());
+    tube(
+        &mut bp,
+        &mut bi,
+        Vec3::new(5.0, 2.0, 0.0),
+        Vec3::new(5.0, 10.0, 0.0),
+        0.2,
+    );
+    tube(&mut bp, &mut bi, Vec3::ZERO, Vec3::Y, 0.1);
+    let s = Scene::of(bp, bi);
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!((r.branch_pieces, r.floating_branches), (2, 1));
+    assert_eq!(r.floating_pieces[0].first_vertex, 0);
+}
+
+#[test]
+fn a_child_tube_starting_inside_its_parent_is_attached() {
+    // A thick trunk (radius 0.5 m, 5 % of the height) and a twig whose
+    // first ring sits on its axis: the surfaces cross where the twig leaves
+    // the trunk, though every twig vertex is far from the trunk's surface.
+    let (mut bp, mut bi) = (Vec::new(), Vec::new());
+    tube(&mut bp, &mut bi, Vec3::ZERO, Vec3::Y * 10.0, 0.5);
+    let (a, b) = (Vec3::Y * 5.0, Vec3::new(3.0, 8.0, 0.0));
+    let base = bp.len() as u32;
+    tube(&mut bp, &mut bi, Vec3::ZERO, Vec3::Y, 0.05);
+    // Shear the twig's unit tube onto a → b.
+    for p in &mut bp[base as usize..] {
+        *p = a + (b - a) * p.y + Vec3::new(p.x, 0.0, p.z);
+    }
+    let s = Scene::of(bp, bi);
+    let r = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap();
+    assert_eq!((r.branch_pieces, r.floating_branches), (2, 0));
+}
+
+#[test]
+fn bad_input_is_the_callers_mistake() {
+    let mut s = Scene::trunk();
+    s.bi.push(999);
+    s.bi.push(0);
+    s.bi.push(0);
+    let e = Plausibility::of(&s.view(), &PlausibilityOptions::default()).unwrap_err();
+    assert_eq!(
+        e,
+        crate::VerifyError::IndexOutOfRange {
+            mesh: "branch",
+            index: 999,
+            vertices: 18
+        }
+    );
+}
+
+#[test]
+fn in_process_and_read_back_agree_on_our_frames() {
+    let tree = treemorph_gltf::sample::sample_tree(200);
+    let topology = FrameTopology::of_tree(&tree);
+    let mut frame = Frame::of_tree(&tree);
+    let mut writer =
+        FrameGlbWriter::new(&topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
+    let mut check = Plausibility::new();
+    let opts = PlausibilityOptions::default();
+    let glb = writer.write(&frame).unwrap();
+    let a = check
+        .check(&MeshView::of_frame_meshes(writer.meshes()), &opts)
+        .unwrap();
+    let meshes = read_glb(&glb).unwrap();
+    let b = Plausibility::of(&meshes.view(), &opts).unwrap();
+    assert!(a.leaves > 100, "{a:?}");
+    assert_eq!(a.floating_leaves, 0, "{a:?}");
+    assert_eq!((b.leaves, b.floating_leaves), (a.leaves, 0));
+    assert_eq!(
+        (b.branch_pieces, b.floating_branches),
+        (a.branch_pieces, a.floating_branches)
+    );
+    // Push every leaf 1 m sideways: all float, in both.
+    for l in &mut frame.leaves {
+        l.anchor += Vec3::X * 50.0;
+    }
+    let glb = writer.write(&frame).unwrap();
+    let a = check
+        .check(&MeshView::of_frame_meshes(writer.meshes()), &opts)
+        .unwrap();
+    let b = Plausibility::of(&read_glb(&glb).unwrap().view(), &opts).unwrap();
+    assert_eq!(a.floating_leaves, a.leaves);
+    assert_eq!(b.floating_leaves, b.leaves);
+    assert!((a.worst_leaf_gap - b.worst_leaf_gap).abs() < 1e-4);
+}

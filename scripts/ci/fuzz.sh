@@ -4,6 +4,12 @@
 #
 #   scripts/ci/fuzz.sh [SECONDS] [TARGET...]
 #
+# All targets build in one `cargo fuzz build`; then the targets run
+# TREEMORPH_FUZZ_JOBS at a time (default: one per core, `nproc`). libFuzzer
+# runs one process per target on one core, so on 2 cores two targets run
+# side by side: each still gets its SECONDS of fuzzing, and the step takes
+# about ceil(targets / jobs) x SECONDS instead of targets x SECONDS.
+#
 # The committed corpus (fuzz/corpus/TARGET) is read, never written: new
 # inputs go to a scratch directory, so a CI run leaves the tree clean. A
 # crash fails the script and leaves the input in fuzz/artifacts/TARGET;
@@ -39,16 +45,40 @@ fi
 
 "${fuzz[@]}" build --fuzz-dir fuzz --sanitizer none
 
-summary=()
-status=0
-for target in "${targets[@]}"; do
+jobs=${TREEMORPH_FUZZ_JOBS:-$(nproc)}
+[ "$jobs" -ge 1 ] 2>/dev/null || jobs=1
+
+# One target: its status (ok/FAILED) goes to $scratch/$target.status.
+fuzz_one() {
+  local target=$1 log="$out/$1.log"
   mkdir -p "$scratch/$target" "fuzz/artifacts/$target"
-  log="$out/$target.log"
-  printf '==> fuzz %s (%ss)\n' "$target" "$seconds"
   if "${fuzz[@]}" run --fuzz-dir fuzz --sanitizer none "$target" \
       "$scratch/$target" "fuzz/corpus/$target" -- \
       -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=10 \
       -print_final_stats=1 >"$log" 2>&1; then
+    echo ok > "$scratch/$target.status"
+  else
+    echo FAILED > "$scratch/$target.status"
+  fi
+}
+
+running=0
+for target in "${targets[@]}"; do
+  if [ "$running" -ge "$jobs" ]; then
+    wait -n || true
+    running=$((running - 1))
+  fi
+  printf '==> fuzz %s (%ss)\n' "$target" "$seconds"
+  fuzz_one "$target" &
+  running=$((running + 1))
+done
+wait
+
+summary=()
+status=0
+for target in "${targets[@]}"; do
+  log="$out/$target.log"
+  if [ "$(cat "$scratch/$target.status" 2>/dev/null)" = ok ]; then
     runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -n 1)
     new=$(find "$scratch/$target" -type f | wc -l)
     summary+=("$(printf '%-16s ok     %10s runs  %5s new corpus inputs' "$target" "${runs:-?}" "$new")")

@@ -3,6 +3,7 @@
 
 use glam::{Mat3, Quat, Vec3};
 use serde::Serialize;
+use treemorph_tree::geom::{NONE, closest_on_segment};
 use treemorph_tree::{NodeId, Skeleton};
 
 use crate::options::AnalysisOptions;
@@ -136,17 +137,11 @@ impl Chain {
         let mut best = (f32::INFINITY, 0.0);
         for i in 0..self.points.len() - 1 {
             let (a, b) = (self.points[i], self.points[i + 1]);
-            let ab = b - a;
-            let len2 = ab.length_squared();
-            let f = if len2 > 0.0 {
-                ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let d = p.distance_squared(a + ab * f);
+            let (q, f) = closest_on_segment(p, a, b);
+            let d = p.distance_squared(q);
             if d < best.0 {
                 let u = if self.length > 0.0 {
-                    (self.arc_lengths[i] + f * ab.length()) / self.length
+                    (self.arc_lengths[i] + f * (b - a).length()) / self.length
                 } else {
                     (i as f32 + f) / (self.points.len() - 1) as f32
                 };
@@ -161,7 +156,7 @@ impl Chain {
 pub(crate) struct Ordering {
     /// Hybrid order of the branch ending at each node (root: 1).
     pub orders: Vec<u32>,
-    /// Chain of the branch ending at each node (root: `u32::MAX`).
+    /// Chain of the branch ending at each node (root: [`NONE`]).
     pub chain_of: Vec<ChainId>,
     /// Index of each node in its chain's polyline (root: 0).
     pub index_in_chain: Vec<u32>,
@@ -190,7 +185,7 @@ pub(crate) fn order(skeleton: &Skeleton, options: &AnalysisOptions) -> Ordering 
     let n = skeleton.len();
     let nodes = skeleton.nodes();
     let mut orders = vec![1u32; n];
-    let mut chain_of = vec![u32::MAX; n];
+    let mut chain_of = vec![NONE; n];
     let mut index_in_chain = vec![0u32; n];
     let mut seeds: Vec<ChainSeed> = Vec::new();
     let mut angles = Vec::new();

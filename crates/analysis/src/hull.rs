@@ -35,6 +35,7 @@
 
 use glam::{DVec3, Mat3, Vec3};
 use serde::Serialize;
+use treemorph_tree::geom::NONE;
 
 /// A closed triangle mesh around a lobe: outward-facing, counter-clockwise
 /// triangles seen from outside. Empty when the lobe has no leaves.
@@ -283,7 +284,7 @@ impl Face {
             offset: normal.dot(a),
             outside: Vec::new(),
             alive: true,
-            adj: [u32::MAX; 3],
+            adj: [NONE; 3],
         }
     }
 
@@ -390,7 +391,7 @@ fn quickhull(points: &[DVec3]) -> Option<Hull> {
     let mut visible: Vec<u32> = Vec::new();
     let mut horizon: Vec<(u32, u32, u32)> = Vec::new(); // (a, b, face beyond)
     let mut orphans: Vec<u32> = Vec::new();
-    let mut visit_mark: Vec<u32> = vec![u32::MAX; faces.len()];
+    let mut visit_mark: Vec<u32> = vec![NONE; faces.len()];
     // Conflict lists of dead faces, reused by new ones (allocation was a
     // third of the hull time on leaf lobes).
     let mut pool: Vec<Vec<u32>> = Vec::new();
@@ -487,12 +488,12 @@ fn quickhull(points: &[DVec3]) -> Option<Hull> {
         }
     }
 
-    let mut remap = vec![u32::MAX; points.len()];
+    let mut remap = vec![NONE; points.len()];
     let mut hull = Hull::default();
     for f in faces.iter().filter(|f| f.alive) {
         let tri = f.v.map(|v| {
             let slot = &mut remap[v as usize];
-            if *slot == u32::MAX {
+            if *slot == NONE {
                 *slot = hull.vertices.len() as u32;
                 hull.vertices.push(points[v as usize].as_vec3());
             }

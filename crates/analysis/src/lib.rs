@@ -114,6 +114,7 @@ pub use leaf::LeafPlacement;
 pub use options::{AnalysisOptions, LobeClustering};
 pub use shape::Lobe;
 pub use summary::{AnalysisExport, AnalysisSummary, LobeCounts, OrderSummary, PatternCounts};
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{NodeId, Tree};
 
 /// The skeleton-lobe representation of one tree.
@@ -238,7 +239,7 @@ impl Analysis {
         self.chain_of
             .get(node as usize)
             .copied()
-            .filter(|&c| c != u32::MAX)
+            .filter(|&c| c != NONE)
     }
 
     /// The root group's GOL: the crown.

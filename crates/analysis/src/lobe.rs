@@ -7,6 +7,7 @@ use std::ops::Range;
 
 use glam::{IVec3, Quat, Vec3};
 use rayon::prelude::*;
+use treemorph_tree::geom::{NONE, closest_on_segment};
 use treemorph_tree::{Leaf, NodeId, Skeleton, Tree};
 
 use crate::chain::{Chain, ChainId};
@@ -92,7 +93,7 @@ fn threshold_kmeans(
     options: &AnalysisOptions,
 ) -> Vec<u32> {
     let k = centers.len();
-    let mut assign = vec![u32::MAX; points.len()];
+    let mut assign = vec![NONE; points.len()];
     let mut sums = vec![Vec3::ZERO; k];
     let mut counts = vec![0u32; k];
     let mut pending: Vec<u32> = (0..points.len() as u32).collect();
@@ -106,7 +107,7 @@ fn threshold_kmeans(
         // smallest distance/radius ratio over all clusters.
         let probe = |&i: &u32| -> (u32, f32) {
             let p = points[i as usize];
-            let mut best = (u32::MAX, f32::INFINITY);
+            let mut best = (NONE, f32::INFINITY);
             let mut min_ratio = f32::INFINITY;
             for c in 0..k {
                 let d = p.distance(centers[c]);
@@ -126,7 +127,7 @@ fn threshold_kmeans(
         let mut next = Vec::with_capacity(pending.len());
         let mut min_ratio = f32::INFINITY;
         for (&i, &(c, r)) in pending.iter().zip(&results) {
-            if c == u32::MAX {
+            if c == NONE {
                 next.push(i);
                 min_ratio = min_ratio.min(r);
             } else {
@@ -229,14 +230,7 @@ pub(crate) fn nearest_branch(
     }
     let dist2 = |p: Vec3, i: usize| -> f32 {
         let (a, b) = seg(i);
-        let ab = b - a;
-        let len2 = ab.length_squared();
-        let f = if len2 > 0.0 {
-            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        p.distance_squared(a + ab * f)
+        p.distance_squared(closest_on_segment(p, a, b).0)
     };
     anchors
         .par_iter()
@@ -291,7 +285,7 @@ pub(crate) fn cluster(
     let crowns = crowns(chains, groups);
     let mut input: Vec<Vec<u32>> = vec![Vec::new(); groups.len()];
     input[0] = (0..anchors.len() as u32).collect();
-    let mut il = vec![u32::MAX; anchors.len()];
+    let mut il = vec![NONE; anchors.len()];
     for level in levels {
         let work: Vec<(GroupId, Vec<u32>)> = level
             .clone()

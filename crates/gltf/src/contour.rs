@@ -71,6 +71,7 @@ use std::f32::consts::{PI, TAU};
 
 use glam::Vec2;
 use thiserror::Error;
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{LeafMaterial, RgbaImage};
 
 /// Fewest contour points accepted.
@@ -479,7 +480,6 @@ fn largest_outer_loop(grid: &[f32], gw: usize, gh: usize) -> Option<Vec<Vec2>> {
         let t = ((ALPHA_LEVEL - va) / (vb - va)).clamp(0.0, 1.0);
         pos(i, j).lerp(pos(i2, j2), t)
     };
-    const NONE: u32 = u32::MAX;
     // next[edge] = the edge the contour leaves the cell through after
     // entering at `edge` (each crossed edge starts exactly one segment).
     let mut next = vec![NONE; 2 * gw * gh];

@@ -100,6 +100,7 @@ use glam::{Mat3A, Quat, Vec2, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use thiserror::Error;
 use treemorph_tree::frame::FrameMismatch;
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Aabb, Frame, FrameTopology, NodeId};
 
 use crate::contour::LeafContour;
@@ -441,7 +442,6 @@ impl BranchMesher {
         // ends at it, or for start-only nodes (the root) the first strand
         // starting there.
         let strands = &topology.strands;
-        const NONE: u32 = u32::MAX;
         let mut owner = vec![NONE; count];
         for (s, ids) in strands.iter().enumerate() {
             for (i, &id) in ids.iter().enumerate() {

@@ -36,11 +36,10 @@
 use std::f32::consts::TAU;
 
 use glam::{Quat, Vec2, Vec3};
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Aabb, Frame, FrameTopology, NodeId};
 
 use crate::mesh::{MeshBuffers, MeshError, MeshGroup, MeshOptions, check_nodes, to_u32};
-
-const NONE: u32 = u32::MAX;
 
 /// One ring of a strand's augmented polyline (its nodes plus the extra
 /// rings after junctions).

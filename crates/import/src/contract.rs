@@ -74,11 +74,12 @@ use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Mat, Side};
 use glam::{DVec3, Vec3};
+use treemorph_tree::geom::{NONE, distance_to_segment};
 
 use crate::error::ImportError;
 use crate::mesh::{Adjacency, Edges, FxMap, Mesh, UnionFind, triangle_area};
 use crate::options::ImportOptions;
-use crate::skeleton::{Piece, closest_on_segment};
+use crate::skeleton::Piece;
 
 const PIN_WEIGHT: f64 = 1e4;
 const MAX_ATTRACTION: f64 = 1e4;
@@ -293,7 +294,7 @@ fn normal_matrix(adj: &Adjacency, positions: &[Vec3]) -> Normal {
     let mut row_idx = Vec::new();
     let mut values = Vec::new();
     let mut acc = vec![0.0f64; n];
-    let mut mark = vec![u32::MAX; n];
+    let mut mark = vec![NONE; n];
     let mut rows: Vec<u32> = Vec::new();
     col_ptr.push(0);
     for k in 0..n as u32 {
@@ -442,7 +443,7 @@ pub(crate) fn surgery(mesh: &Mesh, proxy: &Proxy, contracted: &[Vec3]) -> Piece 
 
     // Geodesic distance on contracted positions.
     let mut dist = vec![f32::INFINITY; n];
-    let mut pred = vec![u32::MAX; n];
+    let mut pred = vec![NONE; n];
     let mut heap = BinaryHeap::new();
     dist[root as usize] = 0.0;
     heap.push(Reverse((0u32, root)));
@@ -502,20 +503,20 @@ pub(crate) fn surgery(mesh: &Mesh, proxy: &Proxy, contracted: &[Vec3]) -> Piece 
     }
     let (slice, k) = uf.labels();
     // Closest vertex of each slice, and the slice's parent.
-    let mut first = vec![u32::MAX; k];
+    let mut first = vec![NONE; k];
     for v in 0..n as u32 {
         if !dist[v as usize].is_finite() {
             continue;
         }
         let s = slice[v as usize] as usize;
-        if first[s] == u32::MAX || dist[v as usize] < dist[first[s] as usize] {
+        if first[s] == NONE || dist[v as usize] < dist[first[s] as usize] {
             first[s] = v;
         }
     }
-    let mut parent = vec![u32::MAX; k];
+    let mut parent = vec![NONE; k];
     for s in 0..k {
         let v = first[s];
-        if v != u32::MAX && pred[v as usize] != u32::MAX {
+        if v != NONE && pred[v as usize] != NONE {
             parent[s] = slice[pred[v as usize] as usize];
         }
     }
@@ -528,9 +529,7 @@ pub(crate) fn surgery(mesh: &Mesh, proxy: &Proxy, contracted: &[Vec3]) -> Piece 
         sum[s] += mesh.positions[v].as_dvec3();
         count[s] += 1;
     }
-    let alive: Vec<bool> = (0..k)
-        .map(|s| first[s] != u32::MAX && count[s] > 0)
-        .collect();
+    let alive: Vec<bool> = (0..k).map(|s| first[s] != NONE && count[s] > 0).collect();
     let centre: Vec<Vec3> = (0..k)
         .map(|s| (sum[s] / f64::from(count[s].max(1))).as_vec3())
         .collect();
@@ -575,14 +574,14 @@ impl SliceTree {
             spread,
             root,
         };
-        t.parent[root] = u32::MAX;
+        t.parent[root] = NONE;
         t
     }
 
     fn children(&self) -> Vec<Vec<u32>> {
         let mut c = vec![Vec::new(); self.parent.len()];
         for (s, &p) in self.parent.iter().enumerate() {
-            if self.alive[s] && p != u32::MAX && self.alive[p as usize] {
+            if self.alive[s] && p != NONE && self.alive[p as usize] {
                 c[p as usize].push(s as u32);
             }
         }
@@ -602,7 +601,7 @@ impl SliceTree {
             let mut len = 0.0;
             let mut v = s;
             let mut branch = None;
-            while self.parent[v] != u32::MAX {
+            while self.parent[v] != NONE {
                 let p = self.parent[v] as usize;
                 len += self.pos[v].distance(self.pos[p]);
                 if children[p].len() > 1 {
@@ -629,14 +628,14 @@ impl SliceTree {
     fn tip_inside_sibling(&self, s: usize, b: usize, first: usize, children: &[Vec<u32>]) -> bool {
         let tip = self.pos[s];
         let near = |a: usize, c: usize| {
-            let d = closest_on_segment(tip, self.pos[a], self.pos[c]).1;
+            let d = distance_to_segment(tip, self.pos[a], self.pos[c]);
             d <= 1.5 * self.spread[a].max(self.spread[c]).max(self.spread[s])
         };
         // Up the parent chain a few nodes.
         let mut v = b;
         for _ in 0..8 {
             let p = self.parent[v];
-            if p == u32::MAX {
+            if p == NONE {
                 break;
             }
             if near(p as usize, v) {
@@ -686,11 +685,11 @@ impl SliceTree {
             }
         }
         // Node ids for kept slices; parents skip removed ones.
-        let mut id = vec![u32::MAX; self.parent.len()];
+        let mut id = vec![NONE; self.parent.len()];
         let mut piece = Piece::default();
         let mut order = vec![self.root];
         let mut head = 0;
-        let mut kept_parent = vec![u32::MAX; self.parent.len()];
+        let mut kept_parent = vec![NONE; self.parent.len()];
         while head < order.len() {
             let s = order[head];
             head += 1;
@@ -698,7 +697,7 @@ impl SliceTree {
                 id[s] = piece.points.len() as u32;
                 piece.points.push(self.pos[s]);
                 piece.radii.push(self.spread[s]);
-                if kept_parent[s] != u32::MAX {
+                if kept_parent[s] != NONE {
                     piece.edges.push((id[kept_parent[s] as usize], id[s]));
                 }
             }
@@ -711,7 +710,7 @@ impl SliceTree {
         // Radii: mean distance of each slice's original vertices to the
         // segments at its kept node (slices between kept nodes count for the
         // segment they lie on).
-        let mut owner = vec![u32::MAX; self.parent.len()];
+        let mut owner = vec![NONE; self.parent.len()];
         for &s in &order {
             owner[s] = if keep[s] {
                 id[s]
@@ -729,14 +728,14 @@ impl SliceTree {
         for (v, &l) in proxy.label.iter().enumerate() {
             let s = slice[l as usize] as usize;
             let node = owner[s];
-            if node == u32::MAX {
+            if node == NONE {
                 continue;
             }
             let p = mesh.positions[v];
             let a = piece.points[node as usize];
             let d = seg_of[node as usize]
                 .iter()
-                .map(|&o| closest_on_segment(p, a, piece.points[o as usize]).1)
+                .map(|&o| distance_to_segment(p, a, piece.points[o as usize]))
                 .fold(f32::INFINITY, f32::min);
             if d.is_finite() {
                 rsum[node as usize] += f64::from(d);
@@ -762,7 +761,7 @@ impl SliceTree {
             let (a, b) = (self.pos[chain[lo]], self.pos[chain[hi]]);
             let mut worst = (0.0f32, 0usize);
             for (i, &s) in chain.iter().enumerate().take(hi).skip(lo + 1) {
-                let d = closest_on_segment(self.pos[s], a, b).1;
+                let d = distance_to_segment(self.pos[s], a, b);
                 let excess = d - 0.2 * self.spread[s];
                 if excess > worst.0 {
                     worst = (excess, i);

@@ -28,6 +28,7 @@
 use std::sync::Arc;
 
 use glam::{Mat3, Quat, Vec2, Vec3};
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{LeafMaterial, RgbaImage, Texture};
 
 use crate::mesh::{FxMap, UnionFind, triangle_area};
@@ -149,7 +150,7 @@ pub(crate) fn extract(
                 out.skipped += 1;
                 continue;
             }
-            let gltf_material = prim.material.map_or(u32::MAX, |m| m as u32);
+            let gltf_material = prim.material.map_or(NONE, |m| m as u32);
             let crop = rect.filter(|r| !is_full(r));
             let qkey = crop.map_or([0; 4], |r| r.map(|x| (x * 64.0).round() as i32));
             let next = out.materials.len() as u32;

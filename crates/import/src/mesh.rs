@@ -5,6 +5,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::Vec3;
+use treemorph_tree::geom::NONE;
 
 /// A small, fast hasher for integer keys (FxHash's multiply-rotate).
 #[derive(Default, Clone, Copy)]
@@ -188,12 +189,12 @@ impl UnionFind {
     /// element, and `k`.
     pub(crate) fn labels(&mut self) -> (Vec<u32>, usize) {
         let n = self.parent.len();
-        let mut label = vec![u32::MAX; n];
+        let mut label = vec![NONE; n];
         let mut k = 0u32;
         let mut out = vec![0u32; n];
         for i in 0..n as u32 {
             let r = self.find(i);
-            if label[r as usize] == u32::MAX {
+            if label[r as usize] == NONE {
                 label[r as usize] = k;
                 k += 1;
             }

@@ -33,6 +33,7 @@ use std::num::NonZero;
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use treemorph_tree::Node;
+use treemorph_tree::geom::{self, NONE};
 
 use crate::error::ImportError;
 
@@ -49,16 +50,11 @@ pub(crate) struct Piece {
 /// shorter branches.
 const MIN_BRANCH: f32 = 1e-5;
 
-/// Closest point to `p` on segment `a`–`b`: parameter and distance.
+/// Closest point to `p` on segment `a`–`b`: parameter and distance (what
+/// joins and leaf attachment compare).
 pub(crate) fn closest_on_segment(p: Vec3, a: Vec3, b: Vec3) -> (f32, f32) {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let s = if len2 > 0.0 {
-        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (s, p.distance(a + ab * s))
+    let (q, s) = geom::closest_on_segment(p, a, b);
+    (s, p.distance(q))
 }
 
 /// Points sampled along segments, for nearest-segment queries.
@@ -445,7 +441,7 @@ impl Soup {
         let (pos, rad, root) = (&self.pos, &self.rad, joined.root);
         let total = pos.len();
         let adj = crate::mesh::Adjacency::of_edges(total, joined.edges.iter().copied());
-        let mut id = vec![u32::MAX; total];
+        let mut id = vec![NONE; total];
         let mut nodes: Vec<Node> = Vec::new();
         id[root as usize] = 0;
         nodes.push(Node {
@@ -460,7 +456,7 @@ impl Soup {
             queue_head += 1;
             let vid = id[v as usize];
             for &w in adj.neighbours(v) {
-                if id[w as usize] != u32::MAX {
+                if id[w as usize] != NONE {
                     continue;
                 }
                 let parent_pos = nodes[vid as usize].position;

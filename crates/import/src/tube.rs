@@ -20,6 +20,7 @@
 //! left to mesh contraction.
 
 use glam::Vec3;
+use treemorph_tree::geom::NONE;
 
 use crate::mesh::{Adjacency, Edges, Mesh, UnionFind};
 use crate::skeleton::Piece;
@@ -88,10 +89,10 @@ pub(crate) fn tube_piece(mesh: &Mesh) -> Option<Piece> {
 /// connected ring.
 fn rings(mesh: &Mesh, adj: &Adjacency, edges: &Edges, sources: &[u32]) -> Option<(f32, Piece)> {
     let n = mesh.len();
-    let mut level = vec![u32::MAX; n];
+    let mut level = vec![NONE; n];
     let mut queue = Vec::with_capacity(n);
     bfs(adj, sources, &mut level, &mut queue);
-    if level.contains(&u32::MAX) {
+    if level.contains(&NONE) {
         return None;
     }
     let levels = *level.iter().max()? as usize + 1;
@@ -103,13 +104,13 @@ fn rings(mesh: &Mesh, adj: &Adjacency, edges: &Edges, sources: &[u32]) -> Option
             uf.union(a, b);
         }
     }
-    let mut root_of_level = vec![u32::MAX; levels];
+    let mut root_of_level = vec![NONE; levels];
     let mut sum = vec![Vec3::ZERO; levels];
     let mut count = vec![0u32; levels];
     for v in 0..n as u32 {
         let l = level[v as usize] as usize;
         let r = uf.find(v);
-        if root_of_level[l] == u32::MAX {
+        if root_of_level[l] == NONE {
             root_of_level[l] = r;
         } else if root_of_level[l] != r {
             return None;
@@ -194,7 +195,7 @@ fn farthest(mesh: &Mesh, adj: &Adjacency, start: u32) -> u32 {
 fn bfs(adj: &Adjacency, sources: &[u32], level: &mut [u32], queue: &mut Vec<u32>) -> u32 {
     queue.clear();
     for &s in sources {
-        if level[s as usize] == u32::MAX {
+        if level[s as usize] == NONE {
             level[s as usize] = 0;
             queue.push(s);
         }
@@ -205,7 +206,7 @@ fn bfs(adj: &Adjacency, sources: &[u32], level: &mut [u32], queue: &mut Vec<u32>
         head += 1;
         let next = level[v as usize] + 1;
         for &w in adj.neighbours(v) {
-            if level[w as usize] == u32::MAX {
+            if level[w as usize] == NONE {
                 level[w as usize] = next;
                 queue.push(w);
             }

@@ -15,8 +15,7 @@ use crate::error::{MorphError, Side};
 use crate::morpher::{Morpher, fraction, locate};
 use crate::options::{LeafMorph, MorphOptions};
 use crate::plan::{
-    ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NO_PARENT, NodeOrigin, Sample,
-    UnionChain,
+    ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NodeOrigin, Sample, UnionChain,
 };
 
 /// The chain data the plan reads, copied from the analysis in one
@@ -455,7 +454,7 @@ fn build_chain(
         let Some(id) = side[sd] else { continue };
         let chain = cx.arrays[sd].get(id);
         side_samples(chain, u, &cx.origins[sd][r.clone()], &mut scratch.side);
-        let anchor = if c.parent == NO_PARENT {
+        let anchor = if c.parent == NONE {
             Quat::IDENTITY
         } else {
             let pr = c.parent_first as usize..(c.parent_first + c.parent_len) as usize;

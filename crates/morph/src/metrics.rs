@@ -4,6 +4,7 @@ use glam::Vec3;
 use serde::Serialize;
 use treemorph_tree::Frame;
 use treemorph_tree::frame::FrameMismatch;
+use treemorph_tree::geom::closest_on_segment;
 
 use crate::correspondence::Operation;
 use crate::options::MetricsOptions;
@@ -41,14 +42,8 @@ fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
     let mut best = (f32::INFINITY, 0.0);
     for j in 0..positions.len() - 1 {
         let (a, b) = (positions[j], positions[j + 1]);
-        let ab = b - a;
-        let len2 = ab.length_squared();
-        let f = if len2 > 0.0 {
-            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = p.distance_squared(a + ab * f);
+        let (q, f) = closest_on_segment(p, a, b);
+        let d = p.distance_squared(q);
         if d < best.0 {
             best = (d, radii[j] + (radii[j + 1] - radii[j]) * f);
         }

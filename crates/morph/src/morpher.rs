@@ -2,10 +2,11 @@
 
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
+use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameLeaf};
 
 use crate::correspondence::Operation;
-use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, NO_PARENT, Sample};
+use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, Sample};
 
 /// Chains per rayon task when a level is split across threads.
 const CHAINS_PER_TASK: usize = 256;
@@ -139,7 +140,7 @@ fn morph_chain(
     let own = &samples[first..first + k];
     let own_u = &u[first..first + k];
     let p = chain.p[0] + (chain.p[1] - chain.p[0]) * t;
-    let (junction, anchor) = if chain.parent == NO_PARENT {
+    let (junction, anchor) = if chain.parent == NONE {
         (root, Quat::IDENTITY)
     } else {
         let pf = chain.parent_first as usize;

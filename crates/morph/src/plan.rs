@@ -10,9 +10,6 @@ use treemorph_tree::{FrameTopology, NodeId};
 
 use crate::correspondence::{Correspondence, LeafMatch, Operation};
 
-/// Parent index of a root chain.
-pub(crate) const NO_PARENT: u32 = u32::MAX;
-
 /// A chain of the union topology: one matched pair (or one copy of a split
 /// or merge), or one growing or wilting chain. Its nodes are a contiguous
 /// range: first its **junction node** (on the parent chain's axis at the
@@ -65,7 +62,8 @@ pub(crate) struct ChainPlan {
     pub first: u32,
     /// Number of samples (≥ 2).
     pub len: u32,
-    /// Parent union chain, or [`NO_PARENT`].
+    /// Parent union chain, or [`NONE`](treemorph_tree::geom::NONE) for a
+    /// root chain.
     pub parent: u32,
     pub parent_first: u32,
     pub parent_len: u32,

@@ -37,6 +37,7 @@
 use glam::{Vec2, Vec3};
 use serde::Serialize;
 use treemorph_tree::Frame;
+use treemorph_tree::geom::closest_on_segment;
 
 use crate::frechet::discrete_frechet_with;
 use crate::plan::SketchPlan;
@@ -617,15 +618,8 @@ fn to_polyline(p: Vec3, nodes: &[u32], pos: &[Vec3], radii: &[f32]) -> (f32, f32
     let mut best = (f32::INFINITY, 0.0);
     for w in nodes.windows(2) {
         let (i, j) = (w[0] as usize, w[1] as usize);
-        let (a, b) = (pos[i], pos[j]);
-        let ab = b - a;
-        let len2 = ab.length_squared();
-        let f = if len2 > 0.0 {
-            ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = p.distance(a + ab * f);
+        let (q, f) = closest_on_segment(p, pos[i], pos[j]);
+        let d = p.distance(q);
         if d < best.0 {
             best = (d, radii[i] + (radii[j] - radii[i]) * f);
         }

@@ -26,6 +26,7 @@
 //! All arithmetic is in `f64`.
 
 use glam::{DVec2, Vec2};
+use treemorph_tree::geom::closest_on_segment;
 
 /// Writes the mean value coordinates of `p` with respect to `cage` into
 /// `out` (`out.len() == cage.len()`). The cage needs ≥ 3 vertices.
@@ -95,14 +96,8 @@ fn nearest_boundary(cage: &[Vec2], x: DVec2, out: &mut [f32]) {
     for i in 0..n {
         let a = cage[i].as_dvec2();
         let b = cage[(i + 1) % n].as_dvec2();
-        let ab = b - a;
-        let len2 = ab.length_squared();
-        let f = if len2 > 0.0 {
-            ((x - a).dot(ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = (a + ab * f).distance_squared(x);
+        let (q, f) = closest_on_segment(x, a, b);
+        let d = q.distance_squared(x);
         if d < best.0 {
             best = (d, i, f);
         }

@@ -6,6 +6,7 @@
 //! counter-clockwise (CCW) is positive area (y up).
 
 use glam::{DVec2, Vec2};
+use treemorph_tree::geom::{closest_on_segment, distance_to_segment};
 
 /// Twice the signed area (positive for CCW), in f64 for robustness.
 pub(crate) fn signed_area2(poly: &[Vec2]) -> f64 {
@@ -107,27 +108,11 @@ pub(crate) fn contains(poly: &[Vec2], p: Vec2) -> bool {
     inside
 }
 
-/// Closest point on segment `ab` to `p`, and its fraction along `ab`.
-pub(crate) fn closest_on_segment(p: Vec2, a: Vec2, b: Vec2) -> (Vec2, f32) {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let f = if len2 > 0.0 {
-        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (a + ab * f, f)
-}
-
 /// Distance from `p` to the boundary of a closed polygon.
 pub(crate) fn distance_to_boundary(poly: &[Vec2], p: Vec2) -> f32 {
     let n = poly.len();
     (0..n)
-        .map(|i| {
-            closest_on_segment(p, poly[i], poly[(i + 1) % n])
-                .0
-                .distance(p)
-        })
+        .map(|i| distance_to_segment(p, poly[i], poly[(i + 1) % n]))
         .fold(f32::INFINITY, f32::min)
 }
 
@@ -200,9 +185,7 @@ pub(crate) fn simplify_open(points: &[Vec2], tolerance: f32) -> Vec<Vec2> {
         }
         let (mut far, mut far_d) = (a, -1.0f32);
         for i in a + 1..b {
-            let d = closest_on_segment(points[i], points[a], points[b])
-                .0
-                .distance(points[i]);
+            let d = distance_to_segment(points[i], points[a], points[b]);
             if d > far_d {
                 far_d = d;
                 far = i;

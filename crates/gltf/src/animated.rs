@@ -86,12 +86,12 @@ use serde_json::{Map, Value, json};
 use treemorph_tree::{Aabb, Frame, FrameTopology};
 
 use crate::contour::LeafContour;
-use crate::doc::{
-    ARRAY_BUFFER, BYTE, Data, Doc, ELEMENT_ARRAY_BUFFER, FLOAT, MAX_U16_VERTICES, SHORT,
-    UNSIGNED_INT, UNSIGNED_SHORT, Wrap, asset,
-};
+use crate::doc::{Data, Doc, MAX_U16_VERTICES, Wrap, asset};
 use crate::frame_glb::material_json;
 use crate::frames::{EncodeError, FrameMeshes, Looks, check_frame};
+use crate::gl::{
+    ARRAY_BUFFER, BYTE, ELEMENT_ARRAY_BUFFER, FLOAT, SHORT, TRIANGLES, UNSIGNED_INT, UNSIGNED_SHORT,
+};
 use crate::mesh::{LeafShape, MeshBuffers, MeshOptions};
 
 const KHR_MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
@@ -605,7 +605,7 @@ impl AnimatedGlbBuilder {
                 "attributes": { "POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv },
                 "indices": accessor,
                 "material": material,
-                "mode": 4,
+                "mode": TRIANGLES,
                 "targets": target_json,
             }));
         }

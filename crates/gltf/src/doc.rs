@@ -9,19 +9,12 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use serde_json::{Map, Value, json};
 
+use crate::gl::{
+    ARRAY_BUFFER, CLAMP_TO_EDGE, ELEMENT_ARRAY_BUFFER, FLOAT, LINEAR, LINEAR_MIPMAP_LINEAR, REPEAT,
+    UNSIGNED_INT, UNSIGNED_SHORT,
+};
 use crate::glb::{CHUNK_BIN, CHUNK_JSON, MAGIC};
 
-pub(crate) const ARRAY_BUFFER: u32 = 34962;
-pub(crate) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
-pub(crate) const BYTE: u32 = 5120;
-pub(crate) const SHORT: u32 = 5122;
-pub(crate) const UNSIGNED_SHORT: u32 = 5123;
-pub(crate) const UNSIGNED_INT: u32 = 5125;
-pub(crate) const FLOAT: u32 = 5126;
-const LINEAR: u32 = 9729;
-const LINEAR_MIPMAP_LINEAR: u32 = 9987;
-const REPEAT: u32 = 10497;
-const CLAMP_TO_EDGE: u32 = 33071;
 /// Meshes with more vertices than this need `u32` indices (65,535 itself is
 /// the primitive-restart value and never used).
 pub(crate) const MAX_U16_VERTICES: usize = 65_535;

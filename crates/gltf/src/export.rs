@@ -47,23 +47,16 @@ use thiserror::Error;
 use treemorph_tree::json::{FORMAT, FormatError, MEDIA_TYPE};
 use treemorph_tree::{Frame, FrameTopology, Limits, Texture, Tree};
 
+use crate::doc::MAX_U16_VERTICES;
+use crate::gl::{
+    ARRAY_BUFFER, CLAMP_TO_EDGE, ELEMENT_ARRAY_BUFFER, FLOAT, LINEAR, LINEAR_MIPMAP_LINEAR, REPEAT,
+    TRIANGLES, UNSIGNED_INT, UNSIGNED_SHORT,
+};
 use crate::glb::{Glb, GlbError};
 use crate::mesh::{BranchMesher, LeafMesher, MeshBuffers, MeshError, MeshOptions};
 
 /// Key of our entry in `extras`.
 pub const EXTRAS_KEY: &str = "treemorph";
-
-const ARRAY_BUFFER: u32 = 34962;
-const ELEMENT_ARRAY_BUFFER: u32 = 34963;
-const FLOAT: u32 = 5126;
-const UNSIGNED_SHORT: u32 = 5123;
-const UNSIGNED_INT: u32 = 5125;
-const LINEAR: u32 = 9729;
-const LINEAR_MIPMAP_LINEAR: u32 = 9987;
-const REPEAT: u32 = 10497;
-const CLAMP_TO_EDGE: u32 = 33071;
-/// Meshes with more vertices than this need `u32` indices.
-const MAX_U16_VERTICES: usize = 65_535;
 
 /// How branches become triangles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -572,7 +565,7 @@ impl<'a> Doc<'a> {
                 "attributes": { "POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv },
                 "indices": indices,
                 "material": material(group.materials),
-                "mode": 4,
+                "mode": TRIANGLES,
             }));
         }
         self.meshes

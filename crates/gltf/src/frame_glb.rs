@@ -29,6 +29,7 @@ use treemorph_tree::{Frame, FrameTopology};
 
 use crate::doc::{Data, Doc, Wrap, asset, color};
 use crate::frames::{EncodeError, FrameMeshes, Look, Looks, check_frame};
+use crate::gl::TRIANGLES;
 use crate::mesh::{LeafShape, MeshBuffers, MeshOptions};
 
 /// Options of [`FrameGlbWriter`].
@@ -364,7 +365,7 @@ fn mesh_json<'a>(
                     "attributes": { "POSITION": position, "NORMAL": normal, "TEXCOORD_0": uv },
                     "indices": accessor,
                     "material": material,
-                    "mode": 4,
+                    "mode": TRIANGLES,
                 })
             })
         })

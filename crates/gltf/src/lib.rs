@@ -41,6 +41,8 @@
 //!   with nodes `branches` and `leaves`, and embeds the tree itself so
 //!   [`read_embedded_tree`] gives it back bit-identical.
 //! - [`glb`] — the GLB container, read with every length bounds-checked.
+//! - [`gl`] — the numeric glTF enums (component types, targets, modes),
+//!   shared with the importer.
 //! - [`sample`] — a deterministic synthetic tree for tests and benchmarks.
 //! - [`welded`] — branches as one continuous, watertight surface
 //!   ([`BranchMeshMode::Welded`]), as many modelling tools write them.
@@ -62,6 +64,7 @@ mod doc;
 pub mod export;
 pub mod frame_glb;
 pub mod frames;
+pub mod gl;
 pub mod glb;
 pub mod mesh;
 pub mod sample;

@@ -5,6 +5,7 @@
 use glam::{Vec2, Vec3};
 use serde_json::Value;
 
+use crate::gl::{BYTE, FLOAT, SHORT, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT};
 use crate::glb::Glb;
 
 /// A parsed GLB: its JSON and its BIN chunk.
@@ -84,10 +85,10 @@ impl Parsed {
         let view_index = view_index as usize;
         let bytes = self.view(view_index);
         let view = &self.json["bufferViews"][view_index];
-        let component = a["componentType"].as_u64().unwrap();
+        let component = a["componentType"].as_u64().unwrap() as u32;
         let size = match component {
-            5120 | 5121 => 1,
-            5122 | 5123 => 2,
+            BYTE | UNSIGNED_BYTE => 1,
+            SHORT | UNSIGNED_SHORT => 2,
             _ => 4,
         };
         let stride = view["byteStride"].as_u64().map_or(n * size, |s| s as usize);
@@ -99,10 +100,10 @@ impl Parsed {
                 let at = offset + i * stride + c * size;
                 let b = &bytes[at..at + size];
                 let v = match component {
-                    5126 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                    5125 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-                    5123 => f32::from(u16::from_le_bytes([b[0], b[1]])),
-                    5122 => {
+                    FLOAT => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                    UNSIGNED_INT => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+                    UNSIGNED_SHORT => f32::from(u16::from_le_bytes([b[0], b[1]])),
+                    SHORT => {
                         let v = f32::from(i16::from_le_bytes([b[0], b[1]]));
                         if normalized {
                             (v / 32_767.0).max(-1.0)
@@ -110,11 +111,11 @@ impl Parsed {
                             v
                         }
                     }
-                    5120 => {
+                    BYTE => {
                         let v = f32::from(b[0] as i8);
                         if normalized { (v / 127.0).max(-1.0) } else { v }
                     }
-                    5121 => f32::from(b[0]),
+                    UNSIGNED_BYTE => f32::from(b[0]),
                     c => panic!("component {c}"),
                 };
                 out.push(v);

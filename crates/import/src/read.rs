@@ -15,6 +15,10 @@ use base64::Engine as _;
 use glam::{Mat4, Quat, Vec2, Vec3};
 use serde::Deserialize;
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
+use treemorph_gltf::gl::{
+    BYTE, FLOAT, SHORT, TRIANGLE_FAN, TRIANGLE_STRIP, TRIANGLES, UNSIGNED_BYTE, UNSIGNED_INT,
+    UNSIGNED_SHORT,
+};
 
 use crate::error::{ImportError, invalid, unsupported};
 use crate::options::ImportOptions;
@@ -658,11 +662,11 @@ impl<'a> Reader<'a> {
     ) -> Result<Option<Primitive>, ImportError> {
         let what = format!("mesh {mesh} primitive {index}");
         let def = &self.root.meshes[mesh].primitives[index];
-        let mode = def.mode.unwrap_or(4);
-        if mode > 6 {
+        let mode = def.mode.unwrap_or(TRIANGLES);
+        if mode > TRIANGLE_FAN {
             return Err(invalid(format!("{what} has mode {mode}")));
         }
-        if mode < 4 {
+        if mode < TRIANGLES {
             self.warnings.push(format!(
                 "{what} draws points or lines (mode {mode}) and is skipped"
             ));
@@ -879,15 +883,15 @@ impl<'a> Reader<'a> {
             other => return Err(invalid(format!("{what} has type {other:?}"))),
         };
         let size = match a.component_type {
-            5120 | 5121 => 1u64,
-            5122 | 5123 => 2,
-            5125 | 5126 => 4,
+            BYTE | UNSIGNED_BYTE => 1u64,
+            SHORT | UNSIGNED_SHORT => 2,
+            UNSIGNED_INT | FLOAT => 4,
             other => return Err(invalid(format!("{what} has componentType {other}"))),
         };
         let (want_components, allowed): (usize, &[u32]) = match usage {
-            Use::Position => (3, &[5126, 5120, 5121, 5122, 5123]),
-            Use::TexCoord => (2, &[5126, 5120, 5121, 5122, 5123]),
-            Use::Index => (1, &[5121, 5123, 5125]),
+            Use::Position => (3, &[FLOAT, BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT]),
+            Use::TexCoord => (2, &[FLOAT, BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT]),
+            Use::Index => (1, &[UNSIGNED_BYTE, UNSIGNED_SHORT, UNSIGNED_INT]),
         };
         if components != want_components {
             return Err(invalid(format!(
@@ -956,10 +960,10 @@ impl<'a> Reader<'a> {
             )));
         }
         let scale = match (a.normalized, usage, a.component_type) {
-            (true, Use::Position | Use::TexCoord, 5120) => Some(127.0),
-            (true, Use::Position | Use::TexCoord, 5121) => Some(255.0),
-            (true, Use::Position | Use::TexCoord, 5122) => Some(32767.0),
-            (true, Use::Position | Use::TexCoord, 5123) => Some(65535.0),
+            (true, Use::Position | Use::TexCoord, BYTE) => Some(127.0),
+            (true, Use::Position | Use::TexCoord, UNSIGNED_BYTE) => Some(255.0),
+            (true, Use::Position | Use::TexCoord, SHORT) => Some(32767.0),
+            (true, Use::Position | Use::TexCoord, UNSIGNED_SHORT) => Some(65535.0),
             _ => None,
         };
         let value = |buffer: &[u8], at: usize| {
@@ -1001,9 +1005,9 @@ impl<'a> Reader<'a> {
         value: &impl Fn(&[u8], usize) -> T,
     ) -> Result<(), ImportError> {
         let isize = match sparse.indices.component_type {
-            5121 => 1u64,
-            5123 => 2,
-            5125 => 4,
+            UNSIGNED_BYTE => 1u64,
+            UNSIGNED_SHORT => 2,
+            UNSIGNED_INT => 4,
             other => {
                 return Err(invalid(format!(
                     "{what} has sparse indices of componentType {other}"
@@ -1067,11 +1071,11 @@ struct Values {
 fn component(buffer: &[u8], at: usize, kind: u32) -> f64 {
     let b = |n: usize| &buffer[at..at + n];
     match kind {
-        5120 => f64::from(b(1)[0] as i8),
-        5121 => f64::from(b(1)[0]),
-        5122 => f64::from(i16::from_le_bytes([b(2)[0], b(2)[1]])),
-        5123 => f64::from(u16::from_le_bytes([b(2)[0], b(2)[1]])),
-        5125 => {
+        BYTE => f64::from(b(1)[0] as i8),
+        UNSIGNED_BYTE => f64::from(b(1)[0]),
+        SHORT => f64::from(i16::from_le_bytes([b(2)[0], b(2)[1]])),
+        UNSIGNED_SHORT => f64::from(u16::from_le_bytes([b(2)[0], b(2)[1]])),
+        UNSIGNED_INT => {
             let x = b(4);
             f64::from(u32::from_le_bytes([x[0], x[1], x[2], x[3]]))
         }
@@ -1121,11 +1125,11 @@ fn local_transform(node: &Node, i: u32) -> Result<Mat4, ImportError> {
 fn triangulate(list: &[u32], mode: u32) -> Vec<[u32; 3]> {
     let mut out = Vec::new();
     match mode {
-        4 => {
+        TRIANGLES => {
             out.reserve(list.len() / 3);
             out.extend(list.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
         }
-        5 => {
+        TRIANGLE_STRIP => {
             for k in 2..list.len() {
                 let t = if k % 2 == 0 {
                     [list[k - 2], list[k - 1], list[k]]

@@ -97,8 +97,10 @@ command -v python3 >/dev/null || { echo "python3 is missing" >&2; exit 1; }
 if [ -n "${TREEMORPH_BIN:-}" ]; then
   bin=$TREEMORPH_BIN
 else
-  cargo build --locked -p treemorph
-  bin=$PWD/target/debug/treemorph
+  # The binary as scripts/test's other steps build it (whole workspace with
+  # its tests: the same dependency features, so no second build).
+  cargo test --workspace --locked --no-run
+  bin=$(realpath -m "${CARGO_TARGET_DIR:-target}")/debug/treemorph
 fi
 
 seed_args=()

@@ -33,9 +33,12 @@ cleanup() {
 trap cleanup EXIT
 trap 'exit 130' INT TERM
 
-cargo build --locked -p treemorph
+# The binary as scripts/test's other steps build it (whole workspace with
+# its tests: the same dependency features, so no second build).
+cargo test --workspace --locked --no-run
+bin=$(realpath -m "${CARGO_TARGET_DIR:-target}")/debug/treemorph
 key=schemathesis-key-1
-TREEMORPH_TEST_RUNNER=slow:1 RUST_LOG=warn target/debug/treemorph serve \
+TREEMORPH_TEST_RUNNER=slow:1 RUST_LOG=warn "$bin" serve \
   --listen 127.0.0.1:0 --data-dir "$data" --api-keys "$key,schemathesis-key-2" \
   >"$out/server.out" 2>"$out/server.log" &
 pid=$!

@@ -98,8 +98,10 @@ done
 if [ -n "${TREEMORPH_BIN:-}" ]; then
   bin=$TREEMORPH_BIN
 else
-  cargo build --locked -p treemorph
-  bin=target/debug/treemorph
+  # The binary as scripts/test's other steps build it (whole workspace with
+  # its tests: the same dependency features, so no second build).
+  cargo test --workspace --locked --no-run
+  bin=$(realpath -m "${CARGO_TARGET_DIR:-target}")/debug/treemorph
 fi
 
 mkdir -p "$work/data"

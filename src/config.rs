@@ -151,6 +151,11 @@ impl Settings {
         s
     }
 
+    /// The limits job requests are checked against.
+    pub fn limits(&self) -> crate::pipeline::Limits {
+        crate::pipeline::Limits::default().with_max_frames(self.max_frames)
+    }
+
     /// The database URL in effect.
     pub fn database_url(&self) -> String {
         self.database_url.clone().unwrap_or_else(|| {

@@ -93,6 +93,19 @@ impl From<sqlx::Error> for ApiError {
     }
 }
 
+impl From<crate::pipeline::JobError> for ApiError {
+    /// A job refused before it was queued: the caller's mistakes keep their
+    /// code and message; anything else is the server's (its message is
+    /// already opaque, and its cause was logged where it arose).
+    fn from(e: crate::pipeline::JobError) -> ApiError {
+        if e.code.is_client_error() {
+            ApiError::new(e.code, e.message)
+        } else {
+            ApiError::internal(e)
+        }
+    }
+}
+
 impl From<crate::store::BlobError> for ApiError {
     fn from(e: crate::store::BlobError) -> ApiError {
         ApiError::unavailable(e)

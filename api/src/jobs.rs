@@ -176,7 +176,9 @@ pub struct MorphRequest {
 }
 
 /// How chains of the two trees are matched.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Matching {
     /// A chain may correspond to several chains (split/merge). Default.
@@ -187,7 +189,9 @@ pub enum Matching {
 }
 
 /// How leaves are assigned between the trees.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum LeafAssignment {
     /// Nearest-first greedy assignment. Default.
@@ -198,17 +202,33 @@ pub enum LeafAssignment {
 }
 
 /// Options of a morph job.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+// This struct is the one definition of a morph job option: serde makes it
+// the JSON of `POST /v1/jobs`, utoipa its OpenAPI schema, and clap the flags
+// of `treemorph morph` and `treemorph client morph` (flattened into both);
+// `treemorph_pipeline::JobSpec::parse` maps it to the pipeline. A new option
+// is a new field here plus its line in that mapping.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema, clap::Args)]
 #[serde(default, deny_unknown_fields)]
 pub struct MorphJobOptions {
-    /// Chain matching. Default `one_to_many`.
+    /// Chain matching: one-to-many (splits and merges; default) or
+    /// one-to-one (the blending baseline: surplus chains grow or wilt).
+    #[arg(long, value_enum, default_value_t)]
     pub matching: Matching,
-    /// Leaf assignment. Default `greedy`.
+    /// Leaf assignment: greedy on matched chains (default) or random with
+    /// straight-line positions (the baseline that leaves leaves floating).
+    #[arg(long, value_enum, default_value_t)]
     pub leaves: LeafAssignment,
     /// Whether split and merge copies use the paper's slow-down
     /// coefficient (copies part from the tips first rather than all along
-    /// their length at once). Default `true`.
+    /// their length at once). Default `true`; `--no-slow-down` on the
+    /// command line.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(
+        long = "no-slow-down",
+        num_args = 0,
+        default_missing_value = "false",
+        value_parser = clap::value_parser!(bool)
+    )]
     pub slow_down: Option<bool>,
     /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
     /// default 24, or `frames` when fewer.
@@ -216,8 +236,13 @@ pub struct MorphJobOptions {
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
     )]
+    #[arg(long)]
     pub keyframes: Option<u32>,
-    /// Encoding of `animation.glb`'s morph targets. Default `float`.
+    /// Encoding of `animation.glb`'s morph targets: float (core glTF,
+    /// plays everywhere; default), quantized (`KHR_mesh_quantization`,
+    /// about half the size) or meshopt (`EXT_meshopt_compression`, about a
+    /// sixth).
+    #[arg(long, value_enum, default_value_t)]
     pub animation_encoding: AnimationEncoding,
 }
 
@@ -266,6 +291,12 @@ pub struct View {
     /// Height of the view volume in metres (orthographic camera).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ortho_height: Option<f32>,
+    /// Width / height of the screen the sketch was drawn on (default 1):
+    /// the screen spans `aspect` times its height horizontally, still
+    /// mapped to x in [-1, 1].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(exclusive_minimum = 0.0)]
+    pub aspect: Option<f32>,
 }
 
 /// A sketched polyline in normalised device coordinates ([-1, 1]², y up).
@@ -302,7 +333,9 @@ fn points() -> utoipa::openapi::schema::Array {
 }
 
 /// How the crown is deformed.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum SketchMethod {
     /// The multiscale cage tree (MCT). Default.
@@ -313,7 +346,9 @@ pub enum SketchMethod {
 }
 
 /// How `animation.glb` stores its morph targets.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum AnimationEncoding {
     /// 32-bit floats: core glTF, plays everywhere (largest file).
@@ -328,7 +363,7 @@ pub enum AnimationEncoding {
 }
 
 /// What the sketch is fitted to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum SketchFit {
     /// Fit the crown (leaves and outer branches) to the sketch.
@@ -336,13 +371,20 @@ pub enum SketchFit {
 }
 
 /// Options of a sketch job.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+// Like `MorphJobOptions`: the one definition of the JSON fields, their
+// OpenAPI schema and the command-line flags of `treemorph sketch` and
+// `treemorph client sketch`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema, clap::Args)]
 #[serde(default, deny_unknown_fields)]
 pub struct SketchJobOptions {
-    /// Deformation method. Default `multiscale`.
+    /// Deformation method: the multiscale cage tree (default) or one
+    /// global cage (the baseline).
+    #[arg(long, value_enum, default_value_t)]
     pub method: SketchMethod,
-    /// What the sketch is fitted to; the pipeline's default when absent.
+    /// What the sketch is fitted to; the pipeline's default when absent
+    /// (on the command line, a sketch file's `"fit"` applies too).
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(long, value_enum)]
     pub fit: Option<SketchFit>,
     /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
     /// default 24, or `frames` when fewer.
@@ -350,8 +392,11 @@ pub struct SketchJobOptions {
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
     )]
+    #[arg(long)]
     pub keyframes: Option<u32>,
-    /// Encoding of `animation.glb`'s morph targets. Default `float`.
+    /// Encoding of `animation.glb`'s morph targets: float (default),
+    /// quantized or meshopt (see the morph options).
+    #[arg(long, value_enum, default_value_t)]
     pub animation_encoding: AnimationEncoding,
 }
 

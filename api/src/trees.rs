@@ -57,6 +57,13 @@ pub struct TreePage {
     pub next_cursor: Option<String>,
 }
 
+/// The seed of a generated tree when the request names none.
+pub const DEFAULT_SEED: u64 = 1;
+
+fn default_seed() -> u64 {
+    DEFAULT_SEED
+}
+
 /// `POST /v1/trees/generate`: a procedural tree.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -64,8 +71,9 @@ pub struct GenerateRequest {
     /// Preset name (as `treemorph generate --list` prints them).
     #[schema(pattern = r"^(eucalyptus|maple|conifer|willow|shrub|dichotomous)$")]
     pub preset: String,
-    /// Random seed (at most 2^63 - 1).
-    #[serde(deserialize_with = "crate::int::u63")]
+    /// Random seed (at most 2^63 - 1); 1 when absent.
+    #[serde(default = "default_seed", deserialize_with = "crate::int::u63")]
+    #[schema(default = 1)]
     pub seed: u64,
     /// Number of branches; 5,000 when absent.
     #[serde(
@@ -75,4 +83,21 @@ pub struct GenerateRequest {
     )]
     #[schema(minimum = 50, maximum = 250000)]
     pub size: Option<u32>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_generate_request_may_leave_the_seed_out() {
+        let r: GenerateRequest = serde_json::from_str(r#"{"preset": "maple"}"#).unwrap();
+        assert_eq!(r.seed, DEFAULT_SEED);
+        let r: GenerateRequest =
+            serde_json::from_str(r#"{"preset": "maple", "seed": 7, "size": 300}"#).unwrap();
+        assert_eq!((r.seed, r.size), (7, Some(300)));
+        assert!(
+            serde_json::from_str::<GenerateRequest>(r#"{"preset": "maple", "seed": -1}"#).is_err()
+        );
+    }
 }

@@ -190,7 +190,7 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
     use treemorph_analysis::{Analysis, AnalysisOptions};
     use treemorph_gltf::frames::FrameMeshes;
     use treemorph_gltf::stream::StreamOptions;
-    use treemorph_morph::{MorphOptions, MorphPlan, Morpher};
+    use treemorph_morph::{MorphPlan, Morpher};
     let cases = [
         (
             (Preset::Eucalyptus, 14_500u32, 4_436usize),
@@ -221,7 +221,8 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
             thousands(a.leaves().len()),
             thousands(b.leaves().len())
         );
-        let morph = MorphOptions::default();
+        // What a job with default options runs.
+        let morph = crate::pipeline::morph_options(&Default::default());
         let timing = measure(quick, || {
             std::hint::black_box(MorphPlan::new(&a, &aa, &b, &ab, &morph).expect("plan"));
         });
@@ -291,13 +292,18 @@ pub(super) fn sketch_rows(quick: bool, rows: &mut Vec<Row>) {
     use treemorph_analysis::{Analysis, AnalysisOptions};
     use treemorph_gltf::frames::FrameMeshes;
     use treemorph_gltf::stream::StreamOptions;
-    use treemorph_sketch::{SketchOptions, SketchPlan, Sketcher, parse_sketch_file};
+    use treemorph_sketch::{SketchPlan, Sketcher, parse_sketch_file};
     let file = parse_sketch_file(include_bytes!("../../examples/sketches/heart.json"))
         .expect("the example sketch parses");
     for (size, leaves, target) in [(5_031u32, 3_830usize, Some(10.0)), (20_000, 15_000, None)] {
         let t = thinned(&tree(Preset::Maple, 1, size), leaves);
         let analysis = Analysis::of(&t, &AnalysisOptions::default()).expect("analysis");
-        let options = SketchOptions::default().with_fit(file.fit);
+        // What a job with the file's fit runs.
+        let options = crate::pipeline::sketch_options(&treemorph_api::jobs::SketchJobOptions {
+            fit: (file.fit == treemorph_sketch::Fit::Crown)
+                .then_some(treemorph_api::jobs::SketchFit::Crown),
+            ..Default::default()
+        });
         let input = "maple seed 1 → heart".to_owned();
         let size_text = format!(
             "{} branches, {} leaves",

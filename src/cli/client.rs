@@ -49,13 +49,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, anyhow};
 use reqwest::Method;
 use reqwest::header::CONTENT_TYPE;
-use treemorph_api::jobs::{
-    JobInfo, JobRequest, JobStatus, LeafAssignment, Matching, MorphJobOptions, MorphRequest,
-    Outputs, SketchJobOptions, SketchRequest,
-};
+use treemorph_api::jobs::{JobInfo, JobRequest, JobStatus, MorphJobOptions, SketchJobOptions};
 use treemorph_api::trees::{GenerateRequest, TreeInfo};
 
-use super::animate::{EncodingArg, Format, LeavesArg, MatchingArg, MethodArg};
+use super::job_args::{Format, morph_request, read_sketch_file, sketch_request};
 use super::{EXIT_FAILURE, Failure};
 use api::{Api, failure};
 use download::DownloadFormat;
@@ -172,12 +169,6 @@ struct JobArgs {
     /// all). `-o DIR` downloads these.
     #[arg(long, value_enum, value_delimiter = ',')]
     format: Vec<Format>,
-    /// Keyframes of animation.glb (2..=frames; default 24 or frames).
-    #[arg(long)]
-    keyframes: Option<u32>,
-    /// How animation.glb stores its morph targets.
-    #[arg(long, value_enum, default_value_t = EncodingArg::Float)]
-    animation_encoding: EncodingArg,
     /// URL that receives the job document when the job ends (webhook).
     #[arg(long)]
     callback_url: Option<String>,
@@ -198,22 +189,15 @@ struct JobArgs {
 /// `client morph`.
 #[derive(Debug, clap::Args)]
 struct MorphArgs {
-    /// Id of the source tree (t = 0).
+    /// The source tree (t = 0): a tree id, or a GLB, glTF or treemorph JSON
+    /// file, which is uploaded first.
     source: String,
-    /// Id of the target tree (t = 1).
+    /// The target tree (t = 1): a tree id or a file, like SOURCE.
     target: String,
     #[command(flatten)]
     job: JobArgs,
-    /// Chain matching: one-to-many (splits and merges; default) or
-    /// one-to-one (the blending baseline).
-    #[arg(long, value_enum, default_value_t = MatchingArg::OneToMany)]
-    matching: MatchingArg,
-    /// Leaf matching: greedy on chains (default) or random.
-    #[arg(long, value_enum, default_value_t = LeavesArg::Greedy)]
-    leaves: LeavesArg,
-    /// Turn the slow-down coefficient of split and merge copies off.
-    #[arg(long)]
-    no_slow_down: bool,
+    #[command(flatten)]
+    options: MorphJobOptions,
 }
 
 /// `client sketch`.
@@ -224,16 +208,16 @@ struct MorphArgs {
 (e.g. examples/sketches/heart.json)."
 )]
 struct SketchArgs {
-    /// Id of the tree to animate.
+    /// The tree to animate: a tree id, or a GLB, glTF or treemorph JSON
+    /// file, which is uploaded first.
     tree: String,
     /// The sketch file (view + sketch, as `treemorph sketch` reads it).
     #[arg(long)]
     sketch: PathBuf,
     #[command(flatten)]
     job: JobArgs,
-    /// Deformation: the multiscale cage tree (default) or one global cage.
-    #[arg(long, value_enum, default_value_t = MethodArg::Multiscale)]
-    method: MethodArg,
+    #[command(flatten)]
+    options: SketchJobOptions,
 }
 
 /// A job id.
@@ -276,30 +260,31 @@ async fn run_async(args: &Args) -> Result<(), Failure> {
         ClientCommand::Upload(a) => upload(&api, a, json).await,
         ClientCommand::Generate(a) => generate(&api, a, json).await,
         ClientCommand::Morph(a) => {
-            let request = JobRequest::Morph(MorphRequest {
-                source: a.source.clone(),
-                target: a.target.clone(),
-                frames: a.job.frames,
-                options: MorphJobOptions {
-                    matching: match a.matching {
-                        MatchingArg::OneToMany => Matching::OneToMany,
-                        MatchingArg::OneToOne => Matching::OneToOne,
-                    },
-                    leaves: match a.leaves {
-                        LeavesArg::Greedy => LeafAssignment::Greedy,
-                        LeavesArg::Random => LeafAssignment::Random,
-                    },
-                    slow_down: a.no_slow_down.then_some(false),
-                    keyframes: a.job.keyframes,
-                    animation_encoding: a.job.animation_encoding.into(),
-                },
-                outputs: outputs(&a.job.format),
-                callback_url: a.job.callback_url.clone(),
-            });
+            // The file (or id) is checked before anything is uploaded, so a
+            // typo in the second name uploads nothing.
+            let source = TreeRef::of(&a.source).await?;
+            let target = TreeRef::of(&a.target).await?;
+            let ids = (source.id(&api).await?, target.id(&api).await?);
+            let request = morph_request(
+                ids,
+                a.job.frames,
+                &a.options,
+                &a.job.format,
+                a.job.callback_url.clone(),
+            );
             start_job(&api, request, &a.job, json).await
         }
         ClientCommand::Sketch(a) => {
-            let request = sketch_request(a)?;
+            let file = read_sketch_file(&a.sketch)?;
+            let tree = TreeRef::of(&a.tree).await?.id(&api).await?;
+            let request = sketch_request(
+                tree,
+                file,
+                a.job.frames,
+                &a.options,
+                &a.job.format,
+                a.job.callback_url.clone(),
+            );
             start_job(&api, request, &a.job, json).await
         }
         ClientCommand::Status(a) => status(&api, &a.job, json).await,
@@ -324,36 +309,45 @@ async fn run_async(args: &Args) -> Result<(), Failure> {
     }
 }
 
-/// The job outputs `--format` asks for (all when none).
-fn outputs(formats: &[Format]) -> Outputs {
-    let all = formats.is_empty() || formats.contains(&Format::All);
-    Outputs {
-        glb: all || formats.contains(&Format::Glb),
-        animated: all || formats.contains(&Format::Animated),
-        delta: all || formats.contains(&Format::Delta),
-    }
+/// A tree named on the command line: an existing file is uploaded, and
+/// anything else is taken as a tree id (ids never contain a path
+/// separator or a dot, so a name that looks like a file but does not exist
+/// is reported as a missing file rather than sent as an id).
+enum TreeRef {
+    /// A stored tree's id.
+    Id(String),
+    /// A tree file read into memory, uploaded on first use.
+    File { path: PathBuf, bytes: Vec<u8> },
 }
 
-/// The request `POST /v1/jobs` takes for a sketch file — the same mapping
-/// `treemorph sketch` uses, so a sketch behaves the same locally and on
-/// the server. The file is parsed and validated here, so a bad file is an
-/// invalid-input error before anything is sent.
-fn sketch_request(a: &SketchArgs) -> Result<JobRequest, Failure> {
-    let file = super::animate::read_sketch_file(&a.sketch)?;
-    Ok(JobRequest::Sketch(SketchRequest {
-        tree: a.tree.clone(),
-        view: file.view,
-        sketch: file.sketch,
-        frames: a.job.frames,
-        options: SketchJobOptions {
-            method: a.method.into(),
-            fit: file.fit,
-            keyframes: a.job.keyframes,
-            animation_encoding: a.job.animation_encoding.into(),
-        },
-        outputs: outputs(&a.job.format),
-        callback_url: a.job.callback_url.clone(),
-    }))
+impl TreeRef {
+    async fn of(arg: &str) -> Result<TreeRef, Failure> {
+        let path = Path::new(arg);
+        let looks_like_path = arg.contains(['/', '\\', '.']);
+        if !looks_like_path && !path.is_file() {
+            return Ok(TreeRef::Id(arg.to_owned()));
+        }
+        let bytes = tokio::fs::read(path)
+            .await
+            .with_context(|| format!("cannot read {arg} (neither a tree id nor a readable file)"))
+            .map_err(Failure::invalid_input)?;
+        Ok(TreeRef::File {
+            path: path.to_owned(),
+            bytes,
+        })
+    }
+
+    /// The tree's id, uploading the file first when it is one.
+    async fn id(self, api: &Api) -> Result<String, Failure> {
+        match self {
+            TreeRef::Id(id) => Ok(id),
+            TreeRef::File { path, bytes } => {
+                let (info, _) = post_tree(api, &path, bytes, None).await?;
+                eprintln!("uploaded {} as tree {}", path.display(), info.id);
+                Ok(info.id)
+            }
+        }
+    }
 }
 
 /// The media type of a tree file: from its content, else its extension.
@@ -375,14 +369,25 @@ async fn upload(api: &Api, a: &UploadArgs, json: bool) -> Result<(), Failure> {
         .await
         .with_context(|| format!("cannot read {}", a.file.display()))
         .map_err(Failure::invalid_input)?;
-    let media = media_type(&a.file, &bytes).ok_or_else(|| {
+    let (info, raw) = post_tree(api, &a.file, bytes, a.name.clone()).await?;
+    print_tree(&info, &raw, json)
+}
+
+/// Uploads a tree file, named `name` or after the file's stem.
+async fn post_tree(
+    api: &Api,
+    path: &Path,
+    bytes: Vec<u8>,
+    name: Option<String>,
+) -> Result<(TreeInfo, serde_json::Value), Failure> {
+    let media = media_type(path, &bytes).ok_or_else(|| {
         Failure::invalid_input(anyhow!(
             "{}: not a GLB, glTF or treemorph JSON tree file",
-            a.file.display()
+            path.display()
         ))
     })?;
-    let name = a.name.clone().or_else(|| {
-        let stem = a.file.file_stem()?.to_str()?;
+    let name = name.or_else(|| {
+        let stem = path.file_stem()?.to_str()?;
         (1..=256).contains(&stem.len()).then(|| stem.to_owned())
     });
     let mut url = api.v1(&["trees"])?;
@@ -393,8 +398,7 @@ async fn upload(api: &Api, a: &UploadArgs, json: bool) -> Result<(), Failure> {
         .request(Method::POST, url)
         .header(CONTENT_TYPE, media)
         .body(bytes);
-    let (info, raw) = api.json::<TreeInfo>(request).await?;
-    print_tree(&info, &raw, json)
+    api.json::<TreeInfo>(request).await
 }
 
 async fn generate(api: &Api, a: &GenerateArgs, json: bool) -> Result<(), Failure> {
@@ -591,18 +595,5 @@ mod tests {
             Some("model/gltf-binary")
         );
         assert_eq!(media_type(Path::new("t.txt"), b"junk"), None);
-    }
-
-    #[test]
-    fn formats_map_to_outputs() {
-        assert_eq!(outputs(&[]), Outputs::default());
-        assert_eq!(
-            outputs(&[Format::Delta]),
-            Outputs {
-                glb: false,
-                animated: false,
-                delta: true
-            }
-        );
     }
 }

@@ -15,6 +15,7 @@ mod client;
 mod generate;
 mod import;
 mod inspect;
+mod job_args;
 mod progress;
 mod serve;
 

@@ -108,6 +108,13 @@ fn decode_err(e: impl std::fmt::Display) -> sqlx::Error {
     sqlx::Error::Decode(e.to_string().into())
 }
 
+/// Progress as clients read it (the job document and SSE): clamped to
+/// [0, 1] and rounded to 4 decimals, because it is stored as a float the
+/// runner computed in `f32`, and `0.07999999821186066` helps nobody.
+pub fn rounded_progress(stored: f64) -> f64 {
+    (stored.clamp(0.0, 1.0) * 1e4).round() / 1e4
+}
+
 impl JobRow {
     fn from_row(row: &AnyRow) -> Result<JobRow, sqlx::Error> {
         let kind: String = row.try_get("kind")?;
@@ -126,7 +133,7 @@ impl JobRow {
             status: JobStatus::parse(&status)
                 .ok_or_else(|| decode_err(format!("unknown job status {status}")))?,
             stage: row.try_get("stage")?,
-            progress: row.try_get("progress")?,
+            progress: rounded_progress(row.try_get("progress")?),
             attempt: row.try_get::<i64, _>("attempt")? as u32,
             lease_token: row.try_get("lease_token")?,
             cancel_requested: row.try_get::<i64, _>("cancel_requested")? != 0,
@@ -152,7 +159,7 @@ impl JobRow {
             id: id.clone(),
             kind: self.kind,
             status: self.status,
-            progress: self.progress.clamp(0.0, 1.0) as f32,
+            progress: self.progress as f32,
             stage: self.stage.clone(),
             attempt: self.attempt,
             frames: self.frames,
@@ -291,17 +298,39 @@ pub async fn create(db: &Db, job: &NewJob) -> Result<Created, sqlx::Error> {
             "job insert conflicted without a key".into(),
         ));
     };
+    replay(db, &job.owner, Some(key), &job.request_hash)
+        .await?
+        .ok_or_else(|| sqlx::Error::Protocol("job insert conflicted on a missing key".into()))
+}
+
+/// What a request with idempotency key `key` and request hash `hash` gets
+/// from a job the key already created: that job when the request is the
+/// same, [`Created::KeyReused`] when it differs; `None` when the key
+/// created no job (or there is no key). The one place the idempotency
+/// decision is made: `POST /v1/jobs` asks before queueing (so a retry
+/// succeeds even when the queue has filled up since), and [`create`] when
+/// a concurrent request won the insert.
+pub async fn replay(
+    db: &Db,
+    owner: &str,
+    key: Option<&str>,
+    hash: &str,
+) -> Result<Option<Created>, sqlx::Error> {
+    let Some(key) = key else { return Ok(None) };
     let existing = sqlx::query("SELECT * FROM jobs WHERE owner = $1 AND idempotency_key = $2")
-        .bind(&job.owner)
+        .bind(owner)
         .bind(key)
-        .fetch_one(&db.pool)
-        .await?;
-    let existing = JobRow::from_row(&existing)?;
-    if existing.request_hash == job.request_hash {
-        Ok(Created::Existing(existing))
-    } else {
-        Ok(Created::KeyReused)
-    }
+        .fetch_optional(&db.pool)
+        .await?
+        .map(|r| JobRow::from_row(&r))
+        .transpose()?;
+    Ok(existing.map(|existing| {
+        if existing.request_hash == hash {
+            Created::Existing(existing)
+        } else {
+            Created::KeyReused
+        }
+    }))
 }
 
 /// The job `id` of `owner`.

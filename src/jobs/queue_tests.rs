@@ -304,3 +304,15 @@ async fn idempotency(db: Db) {
         Created::New(_)
     ));
 }
+
+#[test]
+fn progress_reads_rounded_to_four_decimals() {
+    // Regression: progress computed in f32 and stored as f64 read back as
+    // 0.07999999821186066 in the job document and SSE.
+    assert_eq!(rounded_progress(f64::from(0.08f32)), 0.08);
+    assert_eq!(rounded_progress(f64::from(0.1f32 + 0.85 / 3.0)), 0.3833);
+    assert_eq!(rounded_progress(-0.5), 0.0);
+    assert_eq!(rounded_progress(1.2), 1.0);
+    let json = serde_json::to_string(&(rounded_progress(f64::from(0.08f32)) as f32)).unwrap();
+    assert_eq!(json, "0.08");
+}

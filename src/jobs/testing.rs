@@ -31,7 +31,9 @@ use treemorph_api::delta::{
 };
 use treemorph_api::jobs::JobRequest;
 
-use crate::pipeline::{FrameOutput, JobError, JobInput, JobOutcome, JobSink, Runner, stage};
+use crate::pipeline::{
+    FrameOutput, JobError, JobInput, JobOutcome, JobSink, JobSpec, Limits, Runner, stage,
+};
 
 /// What the test runner does for a request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -49,7 +51,7 @@ pub enum TestBehaviour {
     Stubborn(Duration),
 }
 
-type Decide = dyn Fn(&JobRequest) -> TestBehaviour + Send + Sync;
+type Decide = dyn Fn(&JobSpec) -> TestBehaviour + Send + Sync;
 
 /// The test runner.
 pub struct TestRunner {
@@ -70,9 +72,7 @@ impl std::fmt::Debug for TestRunner {
 
 impl TestRunner {
     /// A runner that decides per request.
-    pub fn new(
-        decide: impl Fn(&JobRequest) -> TestBehaviour + Send + Sync + 'static,
-    ) -> TestRunner {
+    pub fn new(decide: impl Fn(&JobSpec) -> TestBehaviour + Send + Sync + 'static) -> TestRunner {
         TestRunner {
             decide: Arc::new(decide),
             runs: AtomicU32::new(0),
@@ -243,26 +243,21 @@ pub fn read_trace(dir: &std::path::Path) -> std::io::Result<Vec<TraceEvent>> {
 }
 
 fn internal(e: impl std::fmt::Display) -> JobError {
-    JobError {
-        code: ErrorCode::Internal,
-        message: e.to_string(),
-        retryable: false,
-    }
+    JobError::internal(e)
 }
 
 impl Runner for TestRunner {
-    fn check(&self, request: &JobRequest) -> Result<(), JobError> {
-        // The same request checks as production, so tests of the HTTP
-        // layer see the same refusals.
-        crate::pipeline::check_request(request)?;
-        if Some(request.frames()) == self.checks_reject_frames {
-            return Err(JobError {
-                code: ErrorCode::InvalidJob,
-                message: format!("the test runner rejects {} frames", request.frames()),
-                retryable: false,
-            });
+    fn check(&self, request: &JobRequest, limits: &Limits) -> Result<JobSpec, JobError> {
+        // The same conversion as production, so tests of the HTTP layer see
+        // the same refusals.
+        let spec = JobSpec::parse(request, limits)?;
+        if Some(spec.frames()) == self.checks_reject_frames {
+            return Err(JobError::invalid(
+                ErrorCode::InvalidJob,
+                format!("the test runner rejects {} frames", spec.frames()),
+            ));
         }
-        Ok(())
+        Ok(spec)
     }
 
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
@@ -308,9 +303,9 @@ impl TestRunner {
             glb.extend_from_slice(token.unwrap_or_default().as_bytes());
             glb
         };
-        let request = input.request;
-        let frames = request.frames();
-        let (delay, stubborn) = match (self.decide)(request) {
+        let spec = input.spec;
+        let frames = spec.frames();
+        let (delay, stubborn) = match (self.decide)(spec) {
             TestBehaviour::Frames(d) => (d, false),
             TestBehaviour::Stubborn(d) => (d, true),
             TestBehaviour::Fail(code) => {
@@ -330,8 +325,8 @@ impl TestRunner {
             TestBehaviour::Flaky(_) => (Duration::ZERO, false),
             TestBehaviour::Panic => (Duration::ZERO, false),
         };
-        let panic_after_first = (self.decide)(request) == TestBehaviour::Panic;
-        for id in request.tree_ids() {
+        let panic_after_first = (self.decide)(spec) == TestBehaviour::Panic;
+        for id in spec.tree_ids() {
             if !input.trees.contains_key(id) {
                 return Err(internal(format!("tree {id} was not loaded")));
             }
@@ -366,7 +361,7 @@ impl TestRunner {
             sink.frame(FrameOutput {
                 index: n,
                 t,
-                glb: request.outputs().glb.then(|| stamp(frame_glb(n))),
+                glb: spec.outputs().glb.then(|| stamp(frame_glb(n))),
                 delta: stream[before..].to_vec(),
             })
             .map_err(|e| JobError {
@@ -385,12 +380,12 @@ impl TestRunner {
             metrics["attempt"] = token.into();
         }
         let mut files = vec![];
-        if request.outputs().animated {
+        if spec.outputs().animated {
             sink.file("animation.glb", stamp(frame_glb(u32::MAX)))
                 .map_err(|e| internal(&e))?;
             files.push("animation.glb".to_owned());
         }
-        if request.outputs().delta {
+        if spec.outputs().delta {
             sink.file("stream.tmd", stream).map_err(|e| internal(&e))?;
             files.push("stream.tmd".to_owned());
         }
@@ -468,8 +463,11 @@ mod tests {
         ));
         let trees = HashMap::from([("a".to_owned(), tree.clone()), ("b".to_owned(), tree)]);
         let mut sink = Sink::default();
+        let spec = runner
+            .check(&request, &crate::pipeline::Limits::default())
+            .unwrap();
         let input = JobInput {
-            request: &request,
+            spec: &spec,
             trees: &trees,
         };
         runner.run(&input, &mut sink).unwrap();

@@ -72,8 +72,9 @@ pub fn parse_secret(secret: &str) -> Result<Vec<u8>, String> {
 }
 
 /// The signing key: from `--webhook-secret`, else from
-/// `{data_dir}/webhook-secret`, else a new random secret saved there (and
-/// logged once, so the operator can configure receivers).
+/// `{data_dir}/webhook-secret`, else a new random secret saved there. The
+/// log names the file the operator reads it from, never the secret: logs
+/// are often shipped to systems that more people can read.
 pub fn load_or_create_key(settings: &crate::config::Settings) -> anyhow::Result<Vec<u8>> {
     if let Some(secret) = &settings.webhook_secret {
         return parse_secret(secret.trim()).map_err(anyhow::Error::msg);
@@ -93,7 +94,10 @@ pub fn load_or_create_key(settings: &crate::config::Settings) -> anyhow::Result<
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600))?;
     }
-    tracing::warn!(%secret, file = %path.display(), "generated a webhook signing secret");
+    tracing::warn!(
+        file = %path.display(),
+        "generated a webhook signing secret; receivers verify signatures with the secret in this file"
+    );
     Ok(key.to_vec())
 }
 
@@ -308,7 +312,46 @@ async fn record(
 
 #[cfg(test)]
 mod tests {
+    use std::io::Write;
+    use std::sync::{Arc, Mutex};
+
     use super::*;
+
+    /// Collects what a subscriber writes.
+    #[derive(Clone, Default)]
+    struct Captured(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Captured {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_generated_secret_is_logged_by_file_never_by_value() {
+        // Regression: the WARN line at start carried the `whsec_` value.
+        let dir = tempfile::tempdir().unwrap();
+        let settings = crate::config::Settings::with_data_dir(dir.path());
+        let log = Captured::default();
+        let writer = log.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || writer.clone())
+            .with_ansi(false)
+            .finish();
+        let key = tracing::subscriber::with_default(subscriber, || {
+            super::load_or_create_key(&settings).unwrap()
+        });
+        let secret = std::fs::read_to_string(dir.path().join("webhook-secret")).unwrap();
+        assert_eq!(super::parse_secret(secret.trim()).unwrap(), key);
+        let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+        assert!(text.contains("webhook-secret"), "{text}");
+        assert!(!text.contains(secret.trim()), "{text}");
+        assert!(!text.contains("whsec_"), "{text}");
+    }
 
     #[test]
     fn signature_matches_the_standard_webhooks_example() {

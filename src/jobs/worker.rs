@@ -33,7 +33,7 @@ use treemorph_tree::Limits;
 use super::queue::{self, Claim, End, JobRow, Lease, StoredResult};
 use super::sink::{BlobSink, Flags};
 use super::{Services, backoff_ms};
-use crate::pipeline::{InputTree, JobError, JobInput, JobOutcome};
+use crate::pipeline::{InputTree, JobError, JobInput, JobOutcome, JobSpec};
 use crate::store::now_ms;
 
 /// In-flight attempts of this process: job id → (token, flags).
@@ -272,9 +272,9 @@ async fn watch_lease(services: Services, id: String, token: String, flags: Arc<F
 
 async fn load_trees(
     services: &Services,
-    request: &JobRequest,
+    spec: &JobSpec,
 ) -> Result<HashMap<String, Arc<InputTree>>, JobError> {
-    let mut ids = request.tree_ids();
+    let mut ids = spec.tree_ids();
     ids.dedup();
     // The trees of a morph are read and parsed side by side.
     let loaded = futures_util::future::join_all(ids.iter().map(|id| load_tree(services, id))).await;
@@ -332,18 +332,27 @@ async fn load_tree(services: &Services, id: &str) -> Result<Arc<InputTree>, JobE
     Ok(tree)
 }
 
+/// The stored request of a claimed job, converted once into the spec the
+/// run uses.
+///
+/// The frame cap is an admission rule of the process that accepted the
+/// job: a worker started with a lower `--max-frames` still runs what was
+/// accepted, so it checks everything but that cap.
+fn claimed_spec(services: &Services, row: &JobRow) -> Result<JobSpec, JobError> {
+    let request: JobRequest = serde_json::from_str(&row.request)
+        .map_err(|e| JobError::internal(format_args!("stored request is unreadable: {e}")))?;
+    services.runner.check(
+        &request,
+        &crate::pipeline::Limits::default().with_max_frames(u32::MAX),
+    )
+}
+
 async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flags>) -> Ran {
-    let request: JobRequest = match serde_json::from_str(&row.request) {
-        Ok(r) => r,
-        Err(e) => {
-            return Ran::NotStarted(JobError {
-                code: ErrorCode::Internal,
-                message: format!("stored request is unreadable: {e}"),
-                retryable: false,
-            });
-        }
+    let spec = match claimed_spec(services, row) {
+        Ok(spec) => spec,
+        Err(e) => return Ran::NotStarted(e),
     };
-    let trees = match load_trees(services, &request).await {
+    let trees = match load_trees(services, &spec).await {
         Ok(t) => t,
         Err(e) => return Ran::NotStarted(e),
     };
@@ -367,7 +376,7 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
     let work = move || {
         super::priority::lower_this_thread();
         let input = JobInput {
-            request: &request,
+            spec: &spec,
             trees: &trees,
         };
         let result = catch_unwind(AssertUnwindSafe(|| runner.run(&input, sink.as_mut())));

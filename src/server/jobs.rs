@@ -121,13 +121,7 @@ pub async fn post(
     let key = idempotency_key(request.headers())?;
     let (job, _) = json_body::<JobRequest, _>(request, &state).await?;
     let settings = state.settings();
-    let frames = job.frames();
-    if !(2..=settings.max_frames).contains(&frames) {
-        return Err(ApiError::invalid(format!(
-            "frames must be in 2..={}, not {frames}",
-            settings.max_frames
-        )));
-    }
+    let spec = state.services.runner.check(&job, &settings.limits())?;
     for id in job.tree_ids() {
         let found =
             crate::store::is_id(id) && state.services.db.tree(&owner.0, id).await?.is_some();
@@ -143,29 +137,18 @@ pub async fn post(
             .await
             .map_err(|e| ApiError::new(ErrorCode::CallbackUrlRefused, e))?;
     }
-    state.services.runner.check(&job).map_err(|e| {
-        let code = if e.code.is_client_error() {
-            e.code
-        } else {
-            ErrorCode::InvalidJob
-        };
-        ApiError::new(code, e.message)
-    })?;
     let canonical = serde_json::to_string(&job).expect("requests serialise");
     let hash: String = sha2::Sha256::digest(canonical.as_bytes())
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect();
-    if key.is_some()
-        && let Some(existing) = existing_for_key(&state, &owner, key.as_deref()).await?
-    {
-        return if existing.request_hash == hash {
-            Ok(accepted(&existing))
-        } else {
-            Err(key_reused())
-        };
+    let db = &state.services.db;
+    // A retry of an accepted request gets its job even when the queue has
+    // filled up since.
+    if let Some(replayed) = queue::replay(db, &owner.0, key.as_deref(), &hash).await? {
+        return created(replayed, &state);
     }
-    let queued = queue::queued_count(&state.services.db).await?;
+    let queued = queue::queued_count(db).await?;
     if queued >= settings.max_queued as i64 {
         return Err(ApiError::new(
             ErrorCode::QueueFull,
@@ -173,20 +156,25 @@ pub async fn post(
         )
         .retry_after(5));
     }
-    let trees = job.tree_ids();
+    let trees = spec.tree_ids();
     let new = NewJob {
         id: new_id(),
         owner: owner.0.clone(),
-        kind: job.kind(),
+        kind: spec.kind(),
         request: canonical,
         tree_a: trees[0].to_owned(),
         tree_b: trees.get(1).map(|s| (*s).to_owned()),
-        frames,
+        frames: spec.frames(),
         idempotency_key: key,
         request_hash: hash,
         callback_url: job.callback_url().map(str::to_owned),
     };
-    match queue::create(&state.services.db, &new).await? {
+    created(queue::create(db, &new).await?, &state)
+}
+
+/// The answer to `POST /v1/jobs` once the queue has decided.
+fn created(created: Created, state: &AppState) -> Result<Response, ApiError> {
+    match created {
         Created::New(row) => {
             tracing::info!(job = %row.id, kind = row.kind.as_str(), "job queued");
             state.services.hub.work.notify_one();
@@ -202,26 +190,6 @@ fn key_reused() -> ApiError {
         ErrorCode::IdempotencyKeyReused,
         "this Idempotency-Key was used with a different request",
     )
-}
-
-async fn existing_for_key(
-    state: &AppState,
-    owner: &Owner,
-    key: Option<&str>,
-) -> Result<Option<JobRow>, ApiError> {
-    let Some(key) = key else { return Ok(None) };
-    let row = sqlx::query("SELECT id FROM jobs WHERE owner = $1 AND idempotency_key = $2")
-        .bind(&owner.0)
-        .bind(key)
-        .fetch_optional(&state.services.db.pool)
-        .await?;
-    match row {
-        Some(row) => {
-            let id: String = sqlx::Row::try_get(&row, "id")?;
-            Ok(queue::get(&state.services.db, &owner.0, &id).await?)
-        }
-        None => Ok(None),
-    }
 }
 
 /// List jobs, newest first.

@@ -284,6 +284,18 @@ fn client_generates_uploads_morphs_sketches_and_downloads() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert!(metrics.is_object(), "{metrics}");
 
+    // A file in place of a tree id is uploaded first; a path that does not
+    // exist is the caller's invalid input, and nothing is started.
+    let from_file = server
+        .client(&["--json", "morph", s(&glb), &a, "--frames", "3", "--wait"])
+        .expect(OK);
+    assert!(from_file.stderr.contains("uploaded"), "{from_file:#?}");
+    let doc = from_file.json();
+    assert_eq!(doc["status"], "succeeded", "{doc}");
+    let typo = server.client(&["morph", &a, "no-such-tree.glb", "--frames", "3"]);
+    assert_eq!(typo.code, INVALID_INPUT, "{typo:#?}");
+    assert!(typo.stderr.contains("no-such-tree.glb"), "{typo:#?}");
+
     // Status, as text and as the server's JSON.
     let status = server.client(&["status", &job]).expect(OK);
     assert!(status.stdout.contains("status:   succeeded"), "{status:#?}");

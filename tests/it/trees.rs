@@ -244,6 +244,15 @@ async fn generate_validates_its_request() {
         assert_eq!(b["format"], "generated");
         assert_eq!(b["name"], format!("{}-1", preset.name()));
     }
+    // `seed` may be left out: it is 1, the same tree as an explicit 1.
+    let (s, b) = app
+        .post_json(
+            "/v1/trees/generate",
+            &json!({"preset": "maple", "size": 80}),
+        )
+        .await;
+    assert_eq!(s, 201, "{b}");
+    assert_eq!(b["name"], "maple-1");
     for (body, code) in [
         (json!({"preset": "baobab", "seed": 1}), "invalid_request"),
         (
@@ -254,7 +263,6 @@ async fn generate_validates_its_request() {
             json!({"preset": "maple", "seed": 1, "colour": "red"}),
             "invalid_request",
         ),
-        (json!({"preset": "maple"}), "invalid_request"),
         (json!({"preset": "maple", "seed": -1}), "invalid_request"),
     ] {
         let (s, b) = app.post_json("/v1/trees/generate", &body).await;

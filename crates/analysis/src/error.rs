@@ -4,7 +4,8 @@ use thiserror::Error;
 
 /// Why an analysis failed.
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum AnalysisError {
     /// The caller's mistake: an option is out of range.
     #[error("invalid analysis option `{option}`: {reason}")]

@@ -12,7 +12,8 @@ use thiserror::Error;
 /// [`ImportOptions`](crate::ImportOptions) was hit), `invalid_options` (the
 /// caller's options are out of range) and `internal` (a bug).
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum ImportError {
     /// The bytes are not a readable GLB or glTF JSON document, or something
     /// inside it (a chunk, a buffer, an accessor, an index, a number) is

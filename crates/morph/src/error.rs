@@ -23,7 +23,8 @@ impl std::fmt::Display for Side {
 
 /// Why a [`MorphPlan`](crate::MorphPlan) could not be built.
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum MorphError {
     /// The caller's mistake: an option is out of range.
     #[error("invalid morph option `{option}`: {reason}")]

@@ -211,6 +211,27 @@ impl MorphOptions {
         }
     }
 
+    /// These options with another chain matching. The presets above are
+    /// shorthands for these setters; setters compose (one-to-one matching
+    /// with random leaves is
+    /// `MorphOptions::default().with_chain_matching(…).with_leaf_morph(…)`).
+    pub fn with_chain_matching(self, chain_matching: ChainMatching) -> MorphOptions {
+        MorphOptions {
+            chain_matching,
+            ..self
+        }
+    }
+
+    /// These options with another leaf morph.
+    pub fn with_leaf_morph(self, leaf_morph: LeafMorph) -> MorphOptions {
+        MorphOptions { leaf_morph, ..self }
+    }
+
+    /// These options with the slow-down coefficient on or off.
+    pub fn with_slow_down(self, slow_down: bool) -> MorphOptions {
+        MorphOptions { slow_down, ..self }
+    }
+
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), MorphError> {
         let g = &self.group_weights;

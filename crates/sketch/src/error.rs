@@ -23,7 +23,8 @@ impl std::fmt::Display for SketchEnd {
 /// Why a sketch plan could not be built. Every variant but
 /// [`SketchError::Internal`] is the caller's mistake and names it.
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum SketchError {
     /// The sketch file is not valid JSON for the sketch format.
     #[error("invalid sketch file: {0}")]

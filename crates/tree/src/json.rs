@@ -52,7 +52,8 @@ const DATA_URI_PREFIX: &str = "data:image/png;base64,";
 
 /// Why a JSON tree document was refused.
 #[derive(Clone, Debug, Error, PartialEq)]
-#[non_exhaustive]
+// Exhaustive on purpose: the service's error-code table
+// (`treemorph_pipeline::ErrorCoded`) must name a code for every variant.
 pub enum FormatError {
     /// Not JSON, or JSON of the wrong shape.
     #[error("line {line}, column {column}: {message}")]

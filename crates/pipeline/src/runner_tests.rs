@@ -3,11 +3,15 @@ use std::sync::Arc;
 
 use treemorph_api::delta::{DecoderOptions, decode_all};
 use treemorph_api::jobs::{
-    MorphJobOptions, SketchFit, SketchInput, SketchJobOptions, SketchMethod, View,
+    MorphJobOptions, SketchFit, SketchInput, SketchJobOptions, SketchMethod,
 };
 use treemorph_generate::{GenerateOptions, Preset, generate};
 
+use treemorph_api::ErrorCode;
+use treemorph_api::jobs::{JobRequest, MorphRequest, Outputs, SketchRequest};
+
 use super::*;
+use crate::{JobSpec, Limits};
 
 /// Records everything a job publishes, in order.
 #[derive(Default)]
@@ -81,7 +85,8 @@ fn run(
     trees: &HashMap<String, Arc<InputTree>>,
     sink: &mut MemorySink,
 ) -> Result<JobOutcome, JobError> {
-    PipelineRunner::default().run(&JobInput { request, trees }, sink)
+    let spec = JobSpec::parse(request, &Limits::default())?;
+    PipelineRunner::default().run(&JobInput { spec: &spec, trees }, sink)
 }
 
 #[test]
@@ -175,18 +180,13 @@ fn cancellation_stops_within_one_frame() {
 }
 
 fn heart_request(frames: u32) -> JobRequest {
-    let file =
-        treemorph_sketch::parse_sketch_file(include_bytes!("../../examples/sketches/heart.json"))
-            .unwrap();
+    let file = treemorph_sketch::parse_sketch_file(include_bytes!(
+        "../../../examples/sketches/heart.json"
+    ))
+    .unwrap();
     JobRequest::Sketch(SketchRequest {
         tree: "t".into(),
-        view: View {
-            eye: file.view.eye.to_array(),
-            target: file.view.target.to_array(),
-            up: file.view.up.to_array(),
-            fov_deg: file.view.fov_deg,
-            ortho_height: file.view.ortho_height,
-        },
+        view: crate::wire_view(&file.view),
         sketch: SketchInput {
             points: file.sketch.points.iter().map(|p| p.to_array()).collect(),
             closed: file.sketch.closed,
@@ -233,19 +233,29 @@ fn check_refuses_bad_parameters() {
     let runner = PipelineRunner::default();
     for frames in [0, 1, 601] {
         let err = runner
-            .check(&morph_request(frames, Outputs::default()))
+            .check(
+                &morph_request(frames, Outputs::default()),
+                &Limits::default(),
+            )
             .unwrap_err();
-        assert_eq!(err.code, ErrorCode::InvalidJob, "frames {frames}");
+        // The same code `POST /v1/jobs` has always answered for `frames`.
+        assert_eq!(err.code, ErrorCode::InvalidRequest, "frames {frames}");
         assert!(!err.retryable);
     }
     let JobRequest::Morph(mut morph) = morph_request(10, Outputs::default()) else {
         unreachable!()
     };
     morph.options.keyframes = Some(11);
-    let err = runner.check(&JobRequest::Morph(morph.clone())).unwrap_err();
+    let err = runner
+        .check(&JobRequest::Morph(morph.clone()), &Limits::default())
+        .unwrap_err();
     assert!(err.message.contains("keyframes"), "{}", err.message);
     morph.options.keyframes = Some(10);
-    assert!(runner.check(&JobRequest::Morph(morph)).is_ok());
+    assert!(
+        runner
+            .check(&JobRequest::Morph(morph), &Limits::default())
+            .is_ok()
+    );
 
     let JobRequest::Sketch(mut sketch) = heart_request(10) else {
         unreachable!()
@@ -253,7 +263,7 @@ fn check_refuses_bad_parameters() {
     sketch.sketch.points.truncate(2);
     assert_eq!(
         runner
-            .check(&JobRequest::Sketch(sketch.clone()))
+            .check(&JobRequest::Sketch(sketch.clone()), &Limits::default())
             .unwrap_err()
             .code,
         ErrorCode::InvalidSketch
@@ -263,7 +273,10 @@ fn check_refuses_bad_parameters() {
     };
     sketch.view.target = sketch.view.eye;
     assert_eq!(
-        runner.check(&JobRequest::Sketch(sketch)).unwrap_err().code,
+        runner
+            .check(&JobRequest::Sketch(sketch), &Limits::default())
+            .unwrap_err()
+            .code,
         ErrorCode::InvalidSketch
     );
 }

@@ -1,0 +1,210 @@
+//! Jobs without the service: a request converted once into a [`JobSpec`],
+//! its input trees in, frames and files out through a [`JobSink`].
+//!
+//! This crate is synchronous and knows nothing of HTTP, databases or async
+//! runtimes; the service (`treemorph serve`), the command line, the
+//! benchmarks and the fuzz targets all call it.
+//!
+//! - [`JobSpec::parse`] converts a wire request (`treemorph_api::jobs`)
+//!   into validated domain options, once; the spec is kept for the run.
+//! - [`ErrorCoded`] is the one table from every domain error to its stable
+//!   code; [`JobError`] is a job's failure as clients read it.
+//! - The seam between the service's queue (which owns persistence, leases
+//!   and streaming) and the geometry (which owns morphing, sketching,
+//!   meshing and encoding) is the [`Runner`] trait: the queue calls
+//!   [`Runner::check`] when a job is posted (so bad parameters get a 422 at
+//!   once) and [`Runner::run`] on a blocking thread when a worker has
+//!   claimed the job. A runner reports progress, publishes outputs through
+//!   the sink as soon as each exists (the delta stream's header first, then
+//!   one record per frame, so clients can play before the job ends) and
+//!   polls [`JobSink::cancelled`] between frames.
+
+use std::collections::HashMap;
+use std::sync::{Arc, OnceLock};
+
+use treemorph_analysis::{Analysis, AnalysisError, AnalysisOptions};
+use treemorph_api::jobs::JobRequest;
+use treemorph_tree::Tree;
+
+mod error;
+mod runner;
+mod spec;
+
+pub use error::{ErrorCoded, INTERNAL_MESSAGE, JobError};
+pub use runner::PipelineRunner;
+pub use spec::{
+    DEFAULT_KEYFRAMES, JobSpec, Limits, MIN_FRAMES, MorphSpec, RenderSpec, SketchSpec, SpecError,
+    morph_options, sketch_options, view, wire_view,
+};
+
+/// The stages a job goes through, in order; reported in `GET /v1/jobs/{id}`
+/// and the SSE stream.
+pub mod stage {
+    /// Reading the input trees.
+    pub const LOADING: &str = "loading";
+    /// Skeleton-lobe analysis of the inputs.
+    pub const ANALYSING: &str = "analysing";
+    /// Building the morph or sketch plan (correspondences, cages).
+    pub const PLANNING: &str = "planning";
+    /// Computing, meshing and encoding frames.
+    pub const FRAMES: &str = "frames";
+    /// Writing the whole-sequence files (animated GLB, complete stream).
+    pub const FINISHING: &str = "finishing";
+}
+
+/// One frame's outputs.
+#[derive(Debug)]
+pub struct FrameOutput {
+    /// 0-based frame index.
+    pub index: u32,
+    /// Animation time in [0, 1].
+    pub t: f32,
+    /// The frame as a GLB, when per-frame GLBs were requested.
+    pub glb: Option<Vec<u8>>,
+    /// The frame's record of the delta stream.
+    pub delta: Vec<u8>,
+}
+
+/// Why publishing an output failed (storage trouble; the job is retried).
+#[derive(Debug, thiserror::Error)]
+#[error("could not store {what}: {reason}")]
+pub struct SinkError {
+    /// What was being stored.
+    pub what: String,
+    /// The cause.
+    pub reason: String,
+}
+
+/// Where a running job sends progress and outputs.
+pub trait JobSink {
+    /// Reports the current stage and the job's overall progress in [0, 1].
+    fn stage(&mut self, stage: &'static str, progress: f32);
+    /// Whether the job was cancelled; runners check between frames.
+    fn cancelled(&self) -> bool;
+    /// Publishes the delta stream's header (before any frame).
+    fn stream_header(&mut self, bytes: Vec<u8>) -> Result<(), SinkError>;
+    /// Publishes one frame (in index order).
+    fn frame(&mut self, frame: FrameOutput) -> Result<(), SinkError>;
+    /// Publishes a whole-sequence file: `animation.glb`, `stream.tmd`,
+    /// `metrics.json`.
+    fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError>;
+    /// The queue attempt this sink publishes for (`None` outside the queue,
+    /// e.g. the command line). Runners need not care; the test runner
+    /// stamps it into its outputs so the scale-out test can prove which
+    /// attempt every served byte came from.
+    fn attempt(&self) -> Option<Attempt<'_>> {
+        None
+    }
+}
+
+/// One attempt of a queued job (see [`crate::jobs::queue`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Attempt<'a> {
+    /// The job's id.
+    pub job: &'a str,
+    /// The attempt's number (the job's `attempt` counter after the claim).
+    pub number: u32,
+    /// The attempt's lease token: unique per claim, it fences the
+    /// attempt's writes and names the blob prefix of its outputs.
+    pub token: &'a str,
+}
+
+/// What a finished job reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobOutcome {
+    /// Frames produced.
+    pub frames: u32,
+    /// Summary metrics (the `result.metrics` object of the job).
+    pub metrics: serde_json::Value,
+    /// Names of the files published with [`JobSink::file`].
+    pub files: Vec<String>,
+}
+
+/// An input tree with its skeleton-lobe analysis, computed at most once.
+///
+/// A stored tree never changes (a new upload gets a new id), so one
+/// analysis serves every job that names the tree: the service keeps these
+/// in its tree cache (`crate::jobs::tree_cache`), seeded by the upload that
+/// analysed the tree already, and a job on a cached tree starts planning at
+/// once instead of parsing and analysing both trees again.
+#[derive(Debug)]
+pub struct InputTree {
+    tree: Tree,
+    analysis: OnceLock<Analysis>,
+}
+
+impl InputTree {
+    /// A tree whose analysis is computed on first use.
+    pub fn new(tree: Tree) -> InputTree {
+        InputTree {
+            tree,
+            analysis: OnceLock::new(),
+        }
+    }
+
+    /// A tree with its analysis already computed (with the default
+    /// options, the only ones jobs use).
+    pub fn with_analysis(tree: Tree, analysis: Analysis) -> InputTree {
+        InputTree {
+            tree,
+            analysis: OnceLock::from(analysis),
+        }
+    }
+
+    /// The tree.
+    pub fn tree(&self) -> &Tree {
+        &self.tree
+    }
+
+    /// Whether the analysis has been computed.
+    pub fn is_analysed(&self) -> bool {
+        self.analysis.get().is_some()
+    }
+
+    /// The tree's analysis with the default options, computed on the first
+    /// call. Two threads racing here may both compute it; one result is
+    /// kept (they are equal), which is cheaper than holding a lock across
+    /// tens of milliseconds of work. Errors are not kept: the stored trees
+    /// were analysed when uploaded, so an error here is exceptional.
+    pub fn analysis(&self) -> Result<&Analysis, AnalysisError> {
+        if let Some(a) = self.analysis.get() {
+            return Ok(a);
+        }
+        let computed = Analysis::of(&self.tree, &AnalysisOptions::default())?;
+        Ok(self.analysis.get_or_init(|| computed))
+    }
+}
+
+impl From<Tree> for InputTree {
+    fn from(tree: Tree) -> InputTree {
+        InputTree::new(tree)
+    }
+}
+
+/// A claimed job with its input trees loaded.
+#[derive(Debug)]
+pub struct JobInput<'a> {
+    /// The job, converted and validated once.
+    pub spec: &'a JobSpec,
+    /// The trees the request names, by id.
+    pub trees: &'a HashMap<String, Arc<InputTree>>,
+}
+
+/// Runs jobs. Implementations are synchronous and CPU-bound; the queue calls
+/// them on a blocking thread.
+pub trait Runner: Send + Sync + 'static {
+    /// Converts and checks a request before it is queued (cheap: trees are
+    /// not loaded); the worker calls it again on the stored request and
+    /// runs the spec it returns.
+    fn check(&self, request: &JobRequest, limits: &Limits) -> Result<JobSpec, JobError> {
+        Ok(JobSpec::parse(request, limits)?)
+    }
+    /// Runs a job to the end, publishing outputs through `sink`.
+    fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError>;
+}
+
+/// The runner `treemorph serve` uses: morph and sketch jobs through the
+/// geometry crates.
+pub fn default_runner() -> Arc<dyn Runner> {
+    Arc::new(PipelineRunner::default())
+}

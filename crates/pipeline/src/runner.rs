@@ -1,0 +1,491 @@
+//! The production runner: morph and sketch jobs through the geometry crates.
+//!
+//! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
+//! share one sequence driver ([`render`]): it samples the
+//! animation at a few instants to fix what must not change from frame to
+//! frame (tube side counts from the largest radius each node reaches, the
+//! quantisation grid from the bounds), then computes every frame once and
+//! feeds it to each requested encoder in turn — the delta stream (header
+//! published before frame 0, so clients start playing at once), the
+//! per-frame GLB, the animated GLB's keyframes and the metrics.
+
+use std::time::Instant;
+
+use serde_json::{Value, json};
+use treemorph_analysis::Analysis;
+use treemorph_api::ErrorCode;
+use treemorph_gltf::animated::{AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
+use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
+use treemorph_gltf::frames::{EncodeError, max_radii};
+use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
+use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
+use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
+use treemorph_tree::{Aabb, Frame, FrameTopology};
+
+use crate::{
+    FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
+    RenderSpec, Runner, SinkError, SketchSpec, stage,
+};
+
+/// Instants sampled before encoding to bound radii and positions.
+const PROBES: [f32; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
+
+/// Runs morph and sketch jobs.
+#[derive(Debug, Default)]
+pub struct PipelineRunner {}
+
+/// Milliseconds since `started`, for the debug timings of a job's stages.
+fn ms_since(started: Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
+}
+
+fn stored(e: SinkError) -> JobError {
+    JobError::unavailable(e.to_string())
+}
+
+fn encode(e: EncodeError) -> JobError {
+    JobError::from_domain(&e, "encoding frames: ")
+}
+
+impl Runner for PipelineRunner {
+    fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
+        let tree = |id: &str| -> Result<&InputTree, JobError> {
+            input.trees.get(id).map(|t| &**t).ok_or_else(|| {
+                JobError::invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
+            })
+        };
+        match input.spec {
+            JobSpec::Morph(m) => run_morph(m, tree(&m.source)?, tree(&m.target)?, sink),
+            JobSpec::Sketch(s) => run_sketch(s, tree(&s.tree)?, sink),
+        }
+    }
+}
+
+fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
+    input
+        .analysis()
+        .map_err(|e| JobError::from_domain(&e, &format!("tree {:?}: ", input.tree().name())))
+}
+
+fn run_morph(
+    spec: &MorphSpec,
+    source_input: &InputTree,
+    target_input: &InputTree,
+    sink: &mut dyn JobSink,
+) -> Result<JobOutcome, JobError> {
+    sink.stage(stage::ANALYSING, 0.02);
+    // Trees the cache has not analysed yet are analysed side by side.
+    let (a, b) = rayon::join(|| analyse(source_input), || analyse(target_input));
+    let (a, b) = (a?, b?);
+    let (source, target) = (source_input.tree(), target_input.tree());
+    if sink.cancelled() {
+        return Err(JobError::cancelled());
+    }
+    sink.stage(stage::PLANNING, 0.08);
+    let started = Instant::now();
+    let plan = MorphPlan::new(source, a, target, b, &spec.options)
+        .map_err(|e| JobError::from_domain(&e, ""))?;
+    tracing::debug!(ms = ms_since(started), "morph planned");
+    let mut morpher = Morpher::new(&plan);
+    let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
+    let mut series = MorphSeries::with_capacity(spec.render.frames as usize);
+    let mut measure_error = None;
+    let outcome = render(
+        plan.topology(),
+        &spec.render,
+        |t, frame| morpher.morph(t, frame),
+        |frame| match meter.measure(frame) {
+            Ok(m) => series.push(&m),
+            Err(e) => measure_error = Some(e),
+        },
+        sink,
+    )?;
+    if let Some(e) = measure_error {
+        return Err(JobError::internal(format_args!("measuring frames: {e}")));
+    }
+    let (metrics, summary) = series.into_json(spec.render.frames, plan.endpoint_error());
+    finish(outcome, metrics, summary, sink)
+}
+
+#[derive(Default)]
+struct MorphSeries {
+    t: Vec<f32>,
+    floating_branches: Vec<u32>,
+    floating_leaves: Vec<u32>,
+    mtsw: Vec<f32>,
+    max_jump: Vec<f32>,
+}
+
+impl MorphSeries {
+    fn with_capacity(n: usize) -> MorphSeries {
+        MorphSeries {
+            t: Vec::with_capacity(n),
+            floating_branches: Vec::with_capacity(n),
+            floating_leaves: Vec::with_capacity(n),
+            mtsw: Vec::with_capacity(n),
+            max_jump: Vec::with_capacity(n),
+        }
+    }
+
+    fn push(&mut self, m: &treemorph_morph::FrameMetrics) {
+        self.t.push(m.t);
+        self.floating_branches.push(m.floating_branches);
+        self.floating_leaves.push(m.floating_leaves);
+        self.mtsw.push(m.mtsw);
+        self.max_jump.push(m.max_jump);
+    }
+
+    /// `metrics.json` and the job's summary metrics.
+    fn into_json(self, frames: u32, endpoint: treemorph_morph::EndpointError) -> (Value, Value) {
+        let summary = json!({
+            "floating_branches": self.floating_branches.iter().max().copied().unwrap_or(0),
+            "floating_leaves": self.floating_leaves.iter().max().copied().unwrap_or(0),
+            "max_jump": self.max_jump.iter().copied().fold(0.0f32, f32::max),
+            "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
+        });
+        let metrics = json!({
+            "kind": "morph",
+            "frames": frames,
+            "t": self.t,
+            "floating_branches": self.floating_branches,
+            "floating_leaves": self.floating_leaves,
+            "mtsw": self.mtsw,
+            "max_jump": self.max_jump,
+            "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
+        });
+        (metrics, summary)
+    }
+}
+
+fn run_sketch(
+    spec: &SketchSpec,
+    input: &InputTree,
+    sink: &mut dyn JobSink,
+) -> Result<JobOutcome, JobError> {
+    sink.stage(stage::ANALYSING, 0.02);
+    let analysis = analyse(input)?;
+    let tree = input.tree();
+    if sink.cancelled() {
+        return Err(JobError::cancelled());
+    }
+    sink.stage(stage::PLANNING, 0.08);
+    let plan = SketchPlan::new(tree, analysis, &spec.view, &spec.sketch, &spec.options)
+        .map_err(|e| JobError::from_domain(&e, ""))?;
+    let mut sketcher = Sketcher::new(&plan);
+    let mut meter = SketchMetrics::new(&plan);
+    let mut series = SketchSeries::with_capacity(spec.render.frames as usize);
+    let outcome = render(
+        plan.topology(),
+        &spec.render,
+        |t, frame| sketcher.deform(t, frame),
+        |frame| series.push(meter.measure(frame)),
+        sink,
+    )?;
+    let (metrics, summary) = series
+        .into_json(spec.render.frames)
+        .ok_or_else(|| JobError::internal("no frame was measured"))?;
+    finish(outcome, metrics, summary, sink)
+}
+
+#[derive(Default)]
+struct SketchSeries {
+    frechet: Vec<f32>,
+    floating_branches: Vec<usize>,
+    floating_leaves: Vec<usize>,
+    last: Option<treemorph_sketch::FrameMetrics>,
+}
+
+impl SketchSeries {
+    fn with_capacity(n: usize) -> SketchSeries {
+        SketchSeries {
+            frechet: Vec::with_capacity(n),
+            floating_branches: Vec::with_capacity(n),
+            floating_leaves: Vec::with_capacity(n),
+            last: None,
+        }
+    }
+
+    fn push(&mut self, m: treemorph_sketch::FrameMetrics) {
+        self.frechet.push(m.frechet_normalised);
+        self.floating_branches.push(m.floating_branches);
+        self.floating_leaves.push(m.floating_leaves);
+        self.last = Some(m);
+    }
+
+    /// `metrics.json` and the job's summary metrics; `None` when no frame
+    /// was measured.
+    fn into_json(self, frames: u32) -> Option<(Value, Value)> {
+        let last = self.last?;
+        let summary = json!({
+            "final_iou": last.iou,
+            "final_frechet": last.frechet_normalised,
+            "floating_branches": self.floating_branches.iter().max().copied().unwrap_or(0),
+            "floating_leaves": self.floating_leaves.iter().max().copied().unwrap_or(0),
+        });
+        let metrics = json!({
+            "kind": "sketch",
+            "frames": frames,
+            "frechet": self.frechet,
+            "final_iou": last.iou,
+            "final_frechet": last.frechet_normalised,
+            "floating_branches": self.floating_branches,
+            "floating_leaves": self.floating_leaves,
+        });
+        Some((metrics, summary))
+    }
+}
+
+/// What [`render`] produced besides what it published.
+struct Rendered {
+    frames: u32,
+    files: Vec<String>,
+}
+
+fn finish(
+    rendered: Rendered,
+    metrics: Value,
+    summary: Value,
+    sink: &mut dyn JobSink,
+) -> Result<JobOutcome, JobError> {
+    let bytes = serde_json::to_vec_pretty(&metrics).map_err(JobError::internal)?;
+    sink.file("metrics.json", bytes).map_err(stored)?;
+    let mut files = rendered.files;
+    files.push("metrics.json".into());
+    sink.stage(stage::FINISHING, 1.0);
+    Ok(JobOutcome {
+        frames: rendered.frames,
+        metrics: summary,
+        files,
+    })
+}
+
+/// Bounds of every node (with its radius) and leaf (with its size) of a
+/// frame.
+fn frame_bounds(frame: &Frame) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for (p, r) in frame.positions.iter().zip(&frame.radii) {
+        b = b.union(Aabb::of_points([*p]).inflated(*r));
+    }
+    for leaf in &frame.leaves {
+        b = b.union(Aabb::of_points([leaf.anchor]).inflated(leaf.width.max(leaf.height)));
+    }
+    b
+}
+
+/// What must hold for the whole sequence: tube radii per node and the
+/// bounds of every frame.
+struct Probed {
+    radii: Vec<f32>,
+    bounds: Aabb,
+}
+
+/// Side counts and the quantisation grid must hold for the whole
+/// sequence, so they come from a few probes before the first frame.
+fn probe(eval: &mut impl FnMut(f32, &mut Frame), frame: &mut Frame) -> Probed {
+    let started = Instant::now();
+    let mut probes = Vec::with_capacity(PROBES.len());
+    for &t in &PROBES {
+        eval(t, frame);
+        probes.push(frame.clone());
+    }
+    let radii = max_radii(&probes);
+    let bounds = probes
+        .iter()
+        .map(frame_bounds)
+        .fold(Aabb::EMPTY, Aabb::union);
+    tracing::debug!(ms = ms_since(started), "probes sampled");
+    Probed { radii, bounds }
+}
+
+/// The encoders a job's outputs ask for.
+struct Encoders {
+    stream: Option<DeltaStreamWriter>,
+    glb: Option<FrameGlbWriter>,
+    animated: Option<AnimatedGlbBuilder>,
+    /// Frame indices that become keyframes of the animated GLB.
+    picks: Vec<usize>,
+    next_pick: usize,
+}
+
+impl Encoders {
+    fn new(
+        topology: &FrameTopology,
+        render: &RenderSpec,
+        probed: &Probed,
+    ) -> Result<Encoders, JobError> {
+        let outputs = &render.outputs;
+        let stream = outputs
+            .delta
+            .then(|| {
+                let options = StreamOptions::default().with_frame_count(render.frames);
+                DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
+            })
+            .transpose()
+            .map_err(encode)?;
+        let glb = outputs
+            .glb
+            .then(|| FrameGlbWriter::new(topology, &probed.radii, &FrameGlbOptions::default()))
+            .transpose()
+            .map_err(encode)?;
+        let picks = keyframe_indices(render.frames as usize, render.keyframes as usize);
+        let animated = outputs
+            .animated
+            .then(|| {
+                let options = AnimatedOptions::default()
+                    .with_keyframes(picks.len())
+                    .with_encoding(render.encoding);
+                AnimatedGlbBuilder::new(topology, &probed.radii, probed.bounds, &options)
+            })
+            .transpose()
+            .map_err(encode)?;
+        Ok(Encoders {
+            stream,
+            glb,
+            animated,
+            picks,
+            next_pick: 0,
+        })
+    }
+
+    /// Encodes frame `i` as a stream record (into `record`; returns the
+    /// length of the header at its start, which only frame 0 carries) and
+    /// as a GLB. The two are independent encodings of the same frame, so
+    /// they are made side by side: on an idle core this halves the time to
+    /// publish a frame (the first frame's record carries the stream header,
+    /// as slow to build as the GLB).
+    fn encode(
+        &mut self,
+        i: u32,
+        frame: &Frame,
+        record: &mut Vec<u8>,
+    ) -> Result<(Option<usize>, Option<Vec<u8>>), JobError> {
+        let (stream, glb) = (&mut self.stream, &mut self.glb);
+        let (header, glb_bytes) = rayon::join(
+            || -> Result<Option<usize>, EncodeError> {
+                let Some(stream) = stream else {
+                    return Ok(None);
+                };
+                record.clear();
+                stream.write_frame(frame, record)?;
+                Ok(Some(if i == 0 {
+                    stream.header_bytes().map_or(0, <[u8]>::len)
+                } else {
+                    0
+                }))
+            },
+            || glb.as_mut().map(|w| w.write(frame)).transpose(),
+        );
+        Ok((header.map_err(encode)?, glb_bytes.map_err(encode)?))
+    }
+
+    /// Adds frame `i` to the animated GLB when it is a keyframe.
+    fn keyframe(&mut self, i: u32, frame: &Frame) -> Result<(), JobError> {
+        if let Some(builder) = &mut self.animated
+            && self.picks.get(self.next_pick) == Some(&(i as usize))
+        {
+            builder.push(frame).map_err(encode)?;
+            self.next_pick += 1;
+        }
+        Ok(())
+    }
+
+    /// Publishes the whole-sequence files.
+    fn finish(
+        self,
+        mut whole_stream: Vec<u8>,
+        sink: &mut dyn JobSink,
+    ) -> Result<Vec<String>, JobError> {
+        let mut files = Vec::new();
+        if let Some(mut stream) = self.stream {
+            stream.finish(&mut whole_stream).map_err(encode)?;
+            sink.file("stream.tmd", whole_stream).map_err(stored)?;
+            files.push("stream.tmd".into());
+        }
+        if let Some(builder) = self.animated {
+            sink.stage(stage::FINISHING, 0.96);
+            let bytes = builder.finish().map_err(encode)?;
+            sink.file("animation.glb", bytes).map_err(stored)?;
+            files.push("animation.glb".into());
+        }
+        Ok(files)
+    }
+}
+
+/// Computes the spec's frames with `eval`, measures each with `measure`
+/// and publishes them through `sink` in every requested format.
+fn render(
+    topology: &FrameTopology,
+    spec: &RenderSpec,
+    mut eval: impl FnMut(f32, &mut Frame),
+    mut measure: impl FnMut(&Frame),
+    sink: &mut dyn JobSink,
+) -> Result<Rendered, JobError> {
+    let frames = spec.frames;
+    let mut frame = Frame::default();
+    let probed = probe(&mut eval, &mut frame);
+    let mut encoders = Encoders::new(topology, spec, &probed)?;
+    let mut whole_stream = Vec::new();
+    let mut record = Vec::new();
+    for i in 0..frames {
+        if sink.cancelled() {
+            return Err(JobError::cancelled());
+        }
+        let t = i as f32 / (frames - 1) as f32;
+        let started = Instant::now();
+        eval(t, &mut frame);
+        let eval_ms = ms_since(started);
+        let (header, glb) = encoders.encode(i, &frame, &mut record)?;
+        let encoded_ms = ms_since(started);
+        let delta = publish_record(i, header, &record, &mut whole_stream, sink)?;
+        sink.frame(FrameOutput {
+            index: i,
+            t,
+            glb,
+            delta,
+        })
+        .map_err(stored)?;
+        let published_ms = ms_since(started);
+        // Metrics and the animated GLB's keyframes wait until the frame is
+        // out: clients see it sooner.
+        measure(&frame);
+        encoders.keyframe(i, &frame)?;
+        tracing::debug!(
+            frame = i,
+            eval_ms,
+            encoded_ms,
+            published_ms,
+            "frame published"
+        );
+        sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
+    }
+    let files = encoders.finish(whole_stream, sink)?;
+    Ok(Rendered { frames, files })
+}
+
+/// Publishes the stream header before frame 0, appends the record to the
+/// whole stream, and returns the frame's delta (the record without the
+/// header); empty when the stream was not requested.
+fn publish_record(
+    i: u32,
+    header: Option<usize>,
+    record: &[u8],
+    whole_stream: &mut Vec<u8>,
+    sink: &mut dyn JobSink,
+) -> Result<Vec<u8>, JobError> {
+    let Some(header) = header else {
+        return Ok(Vec::new());
+    };
+    if i == 0 {
+        if header == 0 {
+            return Err(JobError::internal("the delta stream wrote no header"));
+        }
+        sink.stream_header(record[..header].to_vec())
+            .map_err(stored)?;
+    }
+    whole_stream.extend_from_slice(record);
+    Ok(record[header..].to_vec())
+}
+
+#[cfg(test)]
+#[path = "runner_tests.rs"]
+mod tests;

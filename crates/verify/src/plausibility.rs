@@ -626,9 +626,20 @@ impl Plausibility {
             let centre = pts.iter().copied().sum::<Vec3>() / pts.len() as f32;
             let rho = pts.iter().map(|p| p.distance(centre)).fold(0.0, f32::max);
             let reach = best.sqrt() + rho + small_r;
+            let (mut lo, mut hi) = (pts[0], pts[0]);
+            for &p in &pts {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
             for n in index.within_unsorted::<SquaredEuclidean>(&centre.to_array(), reach * reach) {
+                let t = small[n.item as usize];
+                // Most candidates lie in a shell around the leaf: their
+                // bounds alone rule them out.
+                if box_gap_sq((lo, hi), self.boxes[t as usize]) >= best {
+                    continue;
+                }
                 for &p in &pts {
-                    best = nearest(p, best, small[n.item as usize]);
+                    best = nearest(p, best, t);
                 }
             }
             f.gap = best.sqrt();

@@ -226,6 +226,27 @@ async fn job_requests_are_validated_before_queueing() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn max_frames_above_600_is_honoured_end_to_end() {
+    // Regression: the server checked `--max-frames`, but the runner also
+    // hard-coded 2..=600, so a raised limit had no effect.
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.max_frames = 700
+    })
+    .await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (s, job) = app.morph(&a, &b, 650).await;
+    assert_eq!(s, 202, "{job}");
+    let done = app
+        .wait_status(job["id"].as_str().unwrap(), "succeeded")
+        .await;
+    assert_eq!(done["frames_ready"], 650, "{done}");
+    let (s, e) = app.morph(&a, &b, 701).await;
+    assert_eq!((s, error_code(&e)), (422, "invalid_request"), "{e}");
+    assert!(e["error"]["message"].as_str().unwrap().contains("700"), "{e}");
+    app.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn private_callback_urls_are_refused_by_default() {
     let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
         s.allow_private_callbacks = false

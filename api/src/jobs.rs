@@ -225,6 +225,8 @@ pub struct MorphJobOptions {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[arg(
         long = "no-slow-down",
+        help = "Turn the slow-down coefficient off: split and merge copies part all along \
+                their length at once instead of from the tips first",
         num_args = 0,
         default_missing_value = "false",
         value_parser = clap::value_parser!(bool)

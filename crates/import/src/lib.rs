@@ -49,7 +49,12 @@
 //!    of the original vertices to the skeleton (ring radii for tubes).
 //! 5. **Leaf attachment** (module `attach`): each leaf to the nearest
 //!    branch through a kd-tree (kiddo) over points sampled along the
-//!    branches; `t` and `offset` from the exact closest point.
+//!    branches; `t` and `offset` from the exact closest point. A leaf with
+//!    no wood under it (farther from the axis than the radius plus half its
+//!    size) proves a twig the skeleton lost — contraction's vertex budget
+//!    collapses the thinnest twigs of a welded bark — so a short twig is
+//!    grown to its base ([`ImportReport::grown_twigs`]; the module docs give
+//!    the rule).
 //!
 //! # Errors
 //! Bad input never panics: it gives an [`ImportError`] whose
@@ -146,6 +151,9 @@ pub struct ImportReport {
     pub skipped_leaves: usize,
     /// Wood vertices after welding by position.
     pub wood_vertices: usize,
+    /// Twigs grown to leaves that had no wood under them (one per chain of
+    /// 1–3 new nodes; see the crate docs, stage 5).
+    pub grown_twigs: usize,
     /// Milliseconds spent reading, classifying and extracting leaves,
     /// building the skeleton, and attaching leaves.
     pub timings_ms: [f64; 4],
@@ -163,6 +171,7 @@ impl ImportReport {
             contracted_components: 0,
             skipped_leaves: 0,
             wood_vertices: 0,
+            grown_twigs: 0,
             timings_ms: [0.0; 4],
             warnings,
         }
@@ -316,12 +325,19 @@ fn build(
     let t_skeleton = t1.elapsed();
 
     let t2 = Instant::now();
-    let leaf_list = attach::attach(&nodes, &leaves.leaves);
+    let attached = attach::attach(nodes, &leaves.leaves);
+    if attached.nodes.len() > options.max_nodes {
+        return Err(ImportError::TooLarge(format!(
+            "the skeleton with the twigs grown to its leaves has {} nodes; at most {} are accepted",
+            attached.nodes.len(),
+            options.max_nodes
+        )));
+    }
     let bark = bark(doc, &wood, options, &mut images, &mut warnings);
     let parts = TreeParts {
         name: String::new(),
-        nodes,
-        leaves: leaf_list,
+        nodes: attached.nodes,
+        leaves: attached.leaves,
         materials: Materials {
             bark,
             leaves: leaves.materials,
@@ -342,6 +358,7 @@ fn build(
         contracted_components: contracted,
         skipped_leaves: leaves.skipped,
         wood_vertices,
+        grown_twigs: attached.grown_twigs,
         timings_ms: [
             read_ms,
             t_leaves.as_secs_f64() * 1e3,

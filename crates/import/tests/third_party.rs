@@ -11,8 +11,9 @@
 //!     cargo test -p treemorph-import --test third_party -- --ignored
 //! ```
 
+mod common;
+
 use std::num::NonZero;
-use std::path::PathBuf;
 
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -78,17 +79,7 @@ fn facts(path: &std::path::Path) -> serde_json::Value {
 #[test]
 #[ignore = "needs TREEMORPH_THIRD_PARTY_DIR written by tools/third-party-trees"]
 fn third_party_trees_import() {
-    let dir = PathBuf::from(
-        std::env::var("TREEMORPH_THIRD_PARTY_DIR")
-            .expect("set TREEMORPH_THIRD_PARTY_DIR to the output of tools/third-party-trees"),
-    );
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "glb"))
-        .collect();
-    files.sort();
-    assert!(!files.is_empty(), "no GLB files in {}", dir.display());
+    let files = common::third_party_files();
     for path in files {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         let bytes = std::fs::read(&path).unwrap();

@@ -4,6 +4,7 @@
 #![allow(dead_code)]
 
 use std::num::NonZero;
+use std::path::PathBuf;
 
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -146,4 +147,21 @@ pub fn nodes_inside(truth: &Tree, recovered: &Tree, slack: f32) -> f32 {
         })
         .count();
     inside as f32 / recovered.skeleton().len() as f32
+}
+
+/// The GLB files in `TREEMORPH_THIRD_PARTY_DIR` (the output of
+/// `tools/third-party-trees`), sorted by name.
+pub fn third_party_files() -> Vec<PathBuf> {
+    let dir = PathBuf::from(
+        std::env::var("TREEMORPH_THIRD_PARTY_DIR")
+            .expect("set TREEMORPH_THIRD_PARTY_DIR to the output of tools/third-party-trees"),
+    );
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "glb"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no GLB files in {}", dir.display());
+    files
 }

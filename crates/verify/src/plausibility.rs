@@ -261,6 +261,38 @@ pub struct Plausibility {
     piece_tris: Vec<u32>,
     /// Scratch: one leaf's vertex positions.
     scratch: Vec<Vec3>,
+    /// Per piece, its vertices: `piece_verts[piece_vert_starts[p]..piece_vert_starts[p + 1]]`
+    /// (ascending, so a tube's base ring comes first).
+    piece_vert_starts: Vec<u32>,
+    piece_verts: Vec<u32>,
+    /// Per branch triangle of the index buffer, its index among this
+    /// frame's visible triangles (`u32::MAX` when invisible).
+    visible_of: Vec<u32>,
+    /// Per branch vertex, whether a visible triangle uses it.
+    vertex_visible: Vec<bool>,
+    /// Per visible triangle, its index in the index buffer.
+    tri_orig: Vec<u32>,
+    /// Per piece, what proved it near another piece last frame: tried
+    /// first on the next.
+    partner: Vec<Partner>,
+    /// Per leaf, what proved it attached last frame — one of its vertices
+    /// (by rank among the leaf's) and a triangle (by index in the index
+    /// buffer) — tried first on the next.
+    leaf_proof: Vec<(u32, u32)>,
+}
+
+/// A proof that a piece comes within reach of another, kept between
+/// frames (indices into the branch mesh, stable while it is unchanged).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+enum Partner {
+    #[default]
+    None,
+    /// A vertex of the piece within reach of a triangle (by its index in
+    /// the index buffer) of another piece.
+    Vertex(u32, u32),
+    /// Two triangles (index-buffer indices), the piece's and another's,
+    /// within reach.
+    Triangles(u32, u32),
 }
 
 fn find(parent: &mut [u32], mut x: u32) -> u32 {
@@ -323,6 +355,28 @@ impl Plausibility {
         meshes: &MeshView<'_>,
         options: &PlausibilityOptions,
     ) -> Result<Report, VerifyError> {
+        self.run(meshes, options, false)
+    }
+
+    /// [`Plausibility::check`] without its shortcuts: every piece by the
+    /// exact triangle–triangle search alone, no proof kept from the last
+    /// frame. The reference the fast check is tested against; same
+    /// [`Report`].
+    #[doc(hidden)]
+    pub fn check_reference(
+        &mut self,
+        meshes: &MeshView<'_>,
+        options: &PlausibilityOptions,
+    ) -> Result<Report, VerifyError> {
+        self.run(meshes, options, true)
+    }
+
+    fn run(
+        &mut self,
+        meshes: &MeshView<'_>,
+        options: &PlausibilityOptions,
+        reference: bool,
+    ) -> Result<Report, VerifyError> {
         let valid = |x: f32| x.is_finite() && x >= 0.0;
         if !valid(options.leaf_slack) || !valid(options.branch_reach) {
             return Err(VerifyError::InvalidOptions(format!(
@@ -356,8 +410,8 @@ impl Plausibility {
             height,
             ..Report::default()
         };
-        self.check_leaves(meshes, options, height, &mut report);
-        self.check_pieces(options, height, &mut report);
+        self.check_leaves(meshes, options, height, reference, &mut report);
+        self.check_pieces(meshes, options, height, reference, &mut report);
         Ok(report)
     }
 
@@ -392,6 +446,26 @@ impl Plausibility {
             }
         }
         self.pieces = pieces as usize;
+        self.piece_vert_starts.clear();
+        self.piece_vert_starts.resize(self.pieces + 1, 0);
+        for &piece in &self.piece_of {
+            self.piece_vert_starts[piece as usize + 1] += 1;
+        }
+        for i in 0..self.pieces {
+            self.piece_vert_starts[i + 1] += self.piece_vert_starts[i];
+        }
+        self.piece_verts.clear();
+        self.piece_verts.resize(n, 0);
+        self.parent.clear();
+        self.parent
+            .extend_from_slice(&self.piece_vert_starts[..self.pieces]);
+        for (v, &piece) in self.piece_of.iter().enumerate() {
+            let at = &mut self.parent[piece as usize];
+            self.piece_verts[*at as usize] = v as u32;
+            *at += 1;
+        }
+        self.partner.clear();
+        self.partner.resize(self.pieces, Partner::None);
     }
 
     /// Groups leaf vertices into leaves, unless nothing changed.
@@ -405,6 +479,7 @@ impl Plausibility {
             return Ok(());
         }
         self.leaf_key_layout = Some(key);
+        self.leaf_proof.clear();
         self.leaf_key.clear();
         self.leaf_key.extend_from_slice(meshes.leaf_indices);
         self.leaf_starts.clear();
@@ -474,11 +549,22 @@ impl Plausibility {
         self.tris.clear();
         self.tri_piece.clear();
         self.boxes.clear();
+        self.tri_orig.clear();
+        self.visible_of.clear();
+        self.vertex_visible.clear();
+        self.vertex_visible
+            .resize(meshes.branch_positions.len(), false);
         let p = meshes.branch_positions;
-        for t in meshes.branch_indices.chunks_exact(3) {
+        for (i, t) in meshes.branch_indices.chunks_exact(3).enumerate() {
             let tri = [p[t[0] as usize], p[t[1] as usize], p[t[2] as usize]];
             if (tri[1] - tri[0]).cross(tri[2] - tri[0]).length_squared() <= 0.0 {
+                self.visible_of.push(u32::MAX);
                 continue;
+            }
+            self.visible_of.push(self.tris.len() as u32);
+            self.tri_orig.push(i as u32);
+            for &v in t {
+                self.vertex_visible[v as usize] = true;
             }
             self.tris.push(tri);
             self.tri_piece.push(self.piece_of[t[0] as usize]);
@@ -513,6 +599,7 @@ impl Plausibility {
         meshes: &MeshView<'_>,
         options: &PlausibilityOptions,
         height: f32,
+        reference: bool,
         report: &mut Report,
     ) {
         let slack = options.leaf_slack * height;
@@ -543,13 +630,44 @@ impl Plausibility {
                 hi = hi.max(p);
             }
             let (tris, boxes) = (&self.tris, &self.boxes);
+            // Last frame's proof first: a vertex within reach of a triangle
+            // that is still visible settles it at once.
+            if !reference
+                && let Some(&(k, t)) = self.leaf_proof.get(leaf)
+                && let Some(&s) = self.visible_of.get(t as usize)
+                && s != u32::MAX
+                && (k as usize) < pts.len()
+                && point_triangle_sq(pts[k as usize], tris[s as usize]) <= allowed2
+            {
+                continue;
+            }
+            let mut proof = None;
             let attached = self.grid.any_near(lo - allowed, hi + allowed, |t| {
-                if box_gap_sq((lo, hi), boxes[t as usize]) > allowed2 {
+                let b = boxes[t as usize];
+                if box_gap_sq((lo, hi), b) > allowed2 {
                     return false;
                 }
                 let tri = tris[t as usize];
-                pts.iter().any(|&p| point_triangle_sq(p, tri) <= allowed2)
+                // A vertex's gap to the triangle's bounds is cheap and
+                // rules most vertices out before the exact distance.
+                let hit = pts.iter().position(|&p| {
+                    (reference || box_gap_sq((p, p), b) <= allowed2)
+                        && point_triangle_sq(p, tri) <= allowed2
+                });
+                if let Some(k) = hit {
+                    proof = Some((k as u32, t));
+                }
+                hit.is_some()
             });
+            if let Some((k, t)) = proof
+                && !reference
+            {
+                if self.leaf_proof.len() != leaf_count {
+                    self.leaf_proof.clear();
+                    self.leaf_proof.resize(leaf_count, (u32::MAX, u32::MAX));
+                }
+                self.leaf_proof[leaf] = (k, self.tri_orig[t as usize]);
+            }
             if !attached {
                 report.floating.push(FloatingLeaf {
                     leaf: leaf as u32,
@@ -564,7 +682,7 @@ impl Plausibility {
             return;
         }
         if options.exact_gaps {
-            self.exact_gaps(meshes, report);
+            self.exact_gaps(meshes, reference, report);
             report.worst_leaf_gap = report.floating.iter().map(|f| f.gap).fold(0.0, f32::max);
         } else {
             report.worst_leaf_gap = f32::NAN;
@@ -577,7 +695,7 @@ impl Plausibility {
     /// vertex's nearest centroid; every triangle that could beat it has its
     /// centroid within bound + leaf radius + that circumradius of the
     /// leaf's centre; the largest triangles are tested one by one.
-    fn exact_gaps(&mut self, meshes: &MeshView<'_>, report: &mut Report) {
+    fn exact_gaps(&mut self, meshes: &MeshView<'_>, reference: bool, report: &mut Report) {
         if self.tris.is_empty() {
             for f in &mut report.floating {
                 f.gap = f32::INFINITY;
@@ -611,14 +729,28 @@ impl Plausibility {
                 .iter()
                 .map(|&v| meshes.leaf_positions[v as usize])
                 .collect();
-            let nearest =
-                |p: Vec3, best: f32, t: u32| best.min(point_triangle_sq(p, self.tris[t as usize]));
+            let nearest = |p: Vec3, best: f32, t: u32| {
+                // Bounds no nearer than the best so far cannot beat it.
+                if !reference && box_gap_sq((p, p), self.boxes[t as usize]) >= best {
+                    return best;
+                }
+                best.min(point_triangle_sq(p, self.tris[t as usize]))
+            };
             let mut best = f32::INFINITY;
             for &p in &pts {
                 let n = index.nearest_one::<SquaredEuclidean>(&p.to_array());
                 best = nearest(p, best, small[n.item as usize]);
             }
+            let (mut lo, mut hi) = (pts[0], pts[0]);
+            for &p in &pts {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
             for &t in &big {
+                // Bounds no nearer than the best so far cannot beat it.
+                if !reference && box_gap_sq((lo, hi), self.boxes[t as usize]) >= best {
+                    continue;
+                }
                 for &p in &pts {
                     best = nearest(p, best, t);
                 }
@@ -626,11 +758,6 @@ impl Plausibility {
             let centre = pts.iter().copied().sum::<Vec3>() / pts.len() as f32;
             let rho = pts.iter().map(|p| p.distance(centre)).fold(0.0, f32::max);
             let reach = best.sqrt() + rho + small_r;
-            let (mut lo, mut hi) = (pts[0], pts[0]);
-            for &p in &pts {
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
             for n in index.within_unsorted::<SquaredEuclidean>(&centre.to_array(), reach * reach) {
                 let t = small[n.item as usize];
                 // Most candidates lie in a shell around the leaf: their
@@ -646,9 +773,15 @@ impl Plausibility {
         }
     }
 
-    fn check_pieces(&mut self, options: &PlausibilityOptions, height: f32, report: &mut Report) {
+    fn check_pieces(
+        &mut self,
+        meshes: &MeshView<'_>,
+        options: &PlausibilityOptions,
+        height: f32,
+        reference: bool,
+        report: &mut Report,
+    ) {
         let reach = options.branch_reach * height;
-        let reach2 = reach * reach;
         // The root piece holds the lowest vertex of a visible triangle.
         let mut root = None;
         let mut lowest = f32::INFINITY;
@@ -661,30 +794,24 @@ impl Plausibility {
             }
         }
         for piece in 0..self.pieces {
-            let list = &self.piece_tris
-                [self.piece_starts[piece] as usize..self.piece_starts[piece + 1] as usize];
-            if list.is_empty() {
+            let (start, end) = (
+                self.piece_starts[piece] as usize,
+                self.piece_starts[piece + 1] as usize,
+            );
+            if start == end {
                 continue;
             }
             report.branch_pieces += 1;
             if root == Some(piece as u32) {
                 continue;
             }
-            let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
-            let mut near = false;
-            for &t in list {
-                let (lo, hi) = boxes[t as usize];
-                let tri = tris[t as usize];
-                near = self.grid.any_near(lo - reach, hi + reach, |s| {
-                    tri_piece[s as usize] != piece as u32
-                        && box_gap_sq((lo, hi), boxes[s as usize]) <= reach2
-                        && triangle_triangle_sq(tri, tris[s as usize]) <= reach2
-                });
-                if near {
-                    break;
-                }
-            }
+            let near = if reference {
+                self.piece_near_exact(piece as u32, reach, false)
+            } else {
+                self.piece_near(meshes, piece as u32, reach)
+            };
             if !near {
+                let (tris, list) = (&self.tris, &self.piece_tris[start..end]);
                 let first = list
                     .iter()
                     .flat_map(|&t| tris[t as usize])
@@ -697,5 +824,96 @@ impl Plausibility {
             }
         }
         report.floating_branches = report.floating_pieces.len() as u32;
+    }
+
+    /// Whether `piece` comes within `reach` of another piece: the exact
+    /// answer of [`Plausibility::piece_near_exact`], reached sooner by
+    /// sufficient tests first — last frame's proof, then a vertex of the
+    /// piece within reach of another piece's triangle (a vertex of a
+    /// visible triangle lies on the piece's surface, so the surfaces come
+    /// within that distance). Most child tubes start inside their parent:
+    /// their base ring settles it.
+    fn piece_near(&mut self, meshes: &MeshView<'_>, piece: u32, reach: f32) -> bool {
+        let reach2 = reach * reach;
+        let positions = meshes.branch_positions;
+        let visible = |t: u32| match self.visible_of.get(t as usize) {
+            Some(&v) if v != u32::MAX => Some(v),
+            _ => None,
+        };
+        match self.partner[piece as usize] {
+            Partner::None => {}
+            Partner::Vertex(v, t) => {
+                if self.vertex_visible[v as usize]
+                    && let Some(s) = visible(t)
+                    && point_triangle_sq(positions[v as usize], self.tris[s as usize]) <= reach2
+                {
+                    return true;
+                }
+            }
+            Partner::Triangles(a, b) => {
+                if let (Some(a), Some(b)) = (visible(a), visible(b))
+                    && triangle_triangle_sq(self.tris[a as usize], self.tris[b as usize]) <= reach2
+                {
+                    return true;
+                }
+            }
+        }
+        let verts = &self.piece_verts[self.piece_vert_starts[piece as usize] as usize
+            ..self.piece_vert_starts[piece as usize + 1] as usize];
+        let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
+        for &v in verts {
+            if !self.vertex_visible[v as usize] {
+                continue;
+            }
+            let p = positions[v as usize];
+            let mut hit = u32::MAX;
+            let near = self.grid.any_near(p - reach, p + reach, |s| {
+                let near = tri_piece[s as usize] != piece
+                    && box_gap_sq((p, p), boxes[s as usize]) <= reach2
+                    && point_triangle_sq(p, tris[s as usize]) <= reach2;
+                if near {
+                    hit = s;
+                }
+                near
+            });
+            if near {
+                self.partner[piece as usize] = Partner::Vertex(v, self.tri_orig[hit as usize]);
+                return true;
+            }
+        }
+        self.piece_near_exact(piece, reach, true)
+    }
+
+    /// Whether `piece` comes within `reach` of another piece: every pair of
+    /// its visible triangles and another piece's within the reach's
+    /// bounds, by exact triangle–triangle distance, until one is close
+    /// enough. Keeps the pair as the piece's proof when `remember`.
+    fn piece_near_exact(&mut self, piece: u32, reach: f32, remember: bool) -> bool {
+        let reach2 = reach * reach;
+        let list = &self.piece_tris[self.piece_starts[piece as usize] as usize
+            ..self.piece_starts[piece as usize + 1] as usize];
+        let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
+        for &t in list {
+            let (lo, hi) = boxes[t as usize];
+            let tri = tris[t as usize];
+            let mut hit = u32::MAX;
+            let near = self.grid.any_near(lo - reach, hi + reach, |s| {
+                let near = tri_piece[s as usize] != piece
+                    && box_gap_sq((lo, hi), boxes[s as usize]) <= reach2
+                    && triangle_triangle_sq(tri, tris[s as usize]) <= reach2;
+                if near {
+                    hit = s;
+                }
+                near
+            });
+            if near {
+                if remember {
+                    self.partner[piece as usize] =
+                        Partner::Triangles(self.tri_orig[t as usize], self.tri_orig[hit as usize]);
+                }
+                return true;
+            }
+        }
+        false
     }
 }

@@ -244,3 +244,65 @@ fn in_process_and_read_back_agree_on_our_frames() {
     assert_eq!(b.floating_leaves, b.leaves);
     assert!((a.worst_leaf_gap - b.worst_leaf_gap).abs() < 1e-4);
 }
+
+/// The trunk and a side tube at `x`, with the same index buffer whatever `x`.
+fn trunk_and_tube(x: f32) -> Scene {
+    let mut s = Scene::trunk();
+    tube(
+        &mut s.bp,
+        &mut s.bi,
+        Vec3::new(x, 4.0, 0.0),
+        Vec3::new(x, 6.0, 0.0),
+        0.1,
+    );
+    s
+}
+
+#[test]
+fn a_proof_kept_from_the_last_frame_is_retested() {
+    // Near, then moved away, then back: one context, as over a sequence.
+    let mut check = Plausibility::new();
+    let opts = PlausibilityOptions::default();
+    for (x, floats) in [(0.45, 0), (0.8, 1), (0.45, 0), (0.25, 0), (0.8, 1)] {
+        let s = trunk_and_tube(x);
+        let r = check.check(&s.view(), &opts).unwrap();
+        let reference = Plausibility::new()
+            .check_reference(&s.view(), &opts)
+            .unwrap();
+        assert_eq!(r.floating_branches, floats, "x {x}");
+        assert_eq!(r, reference, "x {x}");
+    }
+}
+
+#[test]
+fn the_fast_check_agrees_with_the_reference_over_a_sequence() {
+    let tree = treemorph_gltf::sample::sample_tree(400);
+    let topology = FrameTopology::of_tree(&tree);
+    let mut frame = Frame::of_tree(&tree);
+    let mut writer =
+        FrameGlbWriter::new(&topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
+    let (mut fast, mut reference) = (Plausibility::new(), Plausibility::new());
+    let opts = PlausibilityOptions::default();
+    let base = frame.clone();
+    for step in 0..6 {
+        // Scatter the nodes and leaves a little more each frame, so leaves
+        // come loose one after another.
+        let k = step as f32 * 0.15;
+        for (i, (p, q)) in frame.positions.iter_mut().zip(&base.positions).enumerate() {
+            let h = (i as f32 * 12.9898).sin() * 43_758.547;
+            let d = Vec3::new(h.fract(), (h * 1.7).fract(), (h * 2.3).fract()) - 0.5;
+            *p = *q + d * k;
+        }
+        for (i, (l, m)) in frame.leaves.iter_mut().zip(&base.leaves).enumerate() {
+            l.anchor = m.anchor + Vec3::X * (k * (i % 3) as f32);
+        }
+        writer.write(&frame).unwrap();
+        let view = MeshView::of_frame_meshes(writer.meshes());
+        let a = fast.check(&view, &opts).unwrap();
+        let b = reference.check_reference(&view, &opts).unwrap();
+        assert_eq!(a, b, "step {step}");
+        if step == 5 {
+            assert!(a.floating_leaves > 0);
+        }
+    }
+}

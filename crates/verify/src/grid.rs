@@ -30,6 +30,8 @@ pub struct TriangleGrid {
     stamp: u32,
     /// Scratch: fill cursors of the counting sort.
     fill: Vec<u32>,
+    /// Scratch: each triangle's cell range (`hi.x < lo.x` for big ones).
+    ranges: Vec<(IVec3, IVec3)>,
 }
 
 fn hash(c: IVec3) -> u32 {
@@ -51,7 +53,12 @@ fn for_each_cell((a, b): (IVec3, IVec3), mut f: impl FnMut(IVec3)) {
 
 impl TriangleGrid {
     fn cell_of(&self, p: Vec3) -> IVec3 {
-        (p / self.cell).floor().as_ivec3()
+        // Floor by truncation and a correction: `floor` is a libm call
+        // on the baseline target, and this is the build's inner loop.
+        let v = p / self.cell;
+        let t = v.as_ivec3();
+        let below = v.cmplt(t.as_vec3());
+        t - IVec3::select(below, IVec3::ONE, IVec3::ZERO)
     }
 
     fn cells(&self, lo: Vec3, hi: Vec3) -> (IVec3, IVec3) {
@@ -68,27 +75,26 @@ impl TriangleGrid {
     pub fn build(&mut self, boxes: &[(Vec3, Vec3)], cell: f32) {
         self.cell = cell;
         self.big.clear();
+        self.ranges.clear();
         let mut total = 0usize;
         for (i, &(lo, hi)) in boxes.iter().enumerate() {
-            let n = Self::span(self.cells(lo, hi));
+            let range = self.cells(lo, hi);
+            let n = Self::span(range);
             if n > MAX_CELLS_PER_TRIANGLE {
                 self.big.push(i as u32);
+                self.ranges.push((IVec3::ZERO, IVec3::NEG_ONE));
             } else {
                 total += n as usize;
+                self.ranges.push(range);
             }
         }
         let size = (total.max(boxes.len()) * 2).max(1024).next_power_of_two();
         self.mask = (size - 1) as u32;
         self.starts.clear();
         self.starts.resize(size + 1, 0);
-        let mut big = self.big.iter().peekable();
-        for (i, &(lo, hi)) in boxes.iter().enumerate() {
-            if big.peek() == Some(&&(i as u32)) {
-                big.next();
-                continue;
-            }
-            let mask = self.mask;
-            for_each_cell(self.cells(lo, hi), |c| {
+        let mask = self.mask;
+        for &range in &self.ranges {
+            for_each_cell(range, |c| {
                 self.starts[(hash(c) & mask) as usize + 1] += 1;
             });
         }
@@ -101,14 +107,8 @@ impl TriangleGrid {
         // that end at each bucket's start.
         self.fill.clear();
         self.fill.extend_from_slice(&self.starts[1..]);
-        let mut big = self.big.iter().peekable();
-        for (i, &(lo, hi)) in boxes.iter().enumerate() {
-            if big.peek() == Some(&&(i as u32)) {
-                big.next();
-                continue;
-            }
-            let mask = self.mask;
-            for_each_cell(self.cells(lo, hi), |c| {
+        for (i, &range) in self.ranges.iter().enumerate() {
+            for_each_cell(range, |c| {
                 let bucket = (hash(c) & mask) as usize;
                 self.fill[bucket] -= 1;
                 self.entries[self.fill[bucket] as usize] = i as u32;

@@ -47,8 +47,14 @@
 //! into a spatial hash (each triangle in every cell its bounds overlap), so
 //! "is any triangle within `r` of this leaf" is an exact range query that
 //! stops at the first hit; the same for a piece's triangles against other
-//! pieces. Only floating leaves get their exact gap, through a k-d tree
-//! (kiddo) over triangle centroids built on demand.
+//! pieces. Sufficient tests come first and settle most cases: what proved
+//! a leaf attached or a piece near on the last frame (a vertex and a
+//! triangle, or two triangles) is tried again, and a piece with a vertex
+//! within reach of another piece's triangle is near (most child tubes
+//! start inside their parent); only what they leave open goes to the
+//! exhaustive search, so the counts are those of the definitions above.
+//! Only floating leaves get their exact gap, through a k-d tree (kiddo)
+//! over triangle centroids built on demand.
 //!
 //! ```
 //! use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};

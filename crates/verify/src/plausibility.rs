@@ -401,9 +401,12 @@ impl Plausibility {
         self.label_pieces(meshes);
         self.group_leaves(meshes)?;
         self.collect_triangles(meshes);
-        // Cells of about half the branch reach: a query spans a few cells
-        // each way; bounded below so a flat or tiny frame stays sane.
-        let cell = (0.01 * height).max(diagonal / 1024.0).max(1e-6);
+        // Cells of about the branch reach (and twice a typical leaf's
+        // allowance): a query spans a cell or two each way, and a thin
+        // tube's triangle sits in one or two cells, which keeps the build
+        // (the bulk of a clean frame's cost) short; bounded below so a
+        // flat or tiny frame stays sane.
+        let cell = (0.02 * height).max(diagonal / 1024.0).max(1e-6);
         self.grid.build(&self.boxes, cell);
 
         let mut report = Report {

@@ -7,6 +7,9 @@
 //! ```sh
 //! cargo test --release -p treemorph-verify --test frame_timing -- --ignored --nocapture
 //! ```
+//!
+//! `FRAME_TIMING_ONLY=morph` (or `random`, `sketch`) runs one sequence;
+//! `FRAME_TIMING_FAST_ONLY=1` times the fast check alone (for profiling).
 
 use std::time::Instant;
 
@@ -34,6 +37,9 @@ fn timed(f: impl FnOnce() -> Report) -> (Report, f64) {
 /// fresh one: "cold") and the reference, asserts equal reports and prints
 /// the times.
 fn run(name: &str, topology: &FrameTopology, mut eval: impl FnMut(f32, &mut Frame)) {
+    if std::env::var("FRAME_TIMING_ONLY").is_ok_and(|only| only != name) {
+        return;
+    }
     let mut frame = Frame::default();
     let mut probes = Vec::new();
     for &t in &PROBES {

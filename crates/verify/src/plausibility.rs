@@ -694,10 +694,11 @@ impl Plausibility {
 
     /// Exact distance from each floating leaf to the branch surface: a k-d
     /// tree over the centroids of all but the largest 1 % of triangles
-    /// (by circumradius about the centroid) gives an upper bound from each
-    /// vertex's nearest centroid; every triangle that could beat it has its
-    /// centroid within bound + leaf radius + that circumradius of the
-    /// leaf's centre; the largest triangles are tested one by one.
+    /// (by circumradius about the centroid) gives an upper bound from a few
+    /// vertices' nearest centroids; every triangle that could beat it has
+    /// its centroid within bound + leaf radius + that circumradius of the
+    /// leaf's centre; the largest triangles are tested one by one, those
+    /// whose bounds are no nearer than the best so far skipped.
     fn exact_gaps(&mut self, meshes: &MeshView<'_>, reference: bool, report: &mut Report) {
         if self.tris.is_empty() {
             for f in &mut report.floating {

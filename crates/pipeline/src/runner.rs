@@ -1,5 +1,14 @@
 //! The production runner: morph and sketch jobs through the geometry crates.
 //!
+//! # Floating leaves and branches in `metrics.json`
+//! `floating_leaves` and `floating_branches` are measured on the meshes we
+//! write (the per-frame GLB's, else the delta stream's, which are the same
+//! geometry), by `treemorph-verify`'s output-level check, frame by frame:
+//! not on how the frame was built, which cannot see a leaf that hangs in
+//! the air because the wood around its node is thinner than assumed. The
+//! construction-based counts stay, as `constructed_floating_leaves` and
+//! `constructed_floating_branches`.
+//!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
 //! animation at a few instants to fix what must not change from frame to
@@ -16,11 +25,12 @@ use treemorph_analysis::Analysis;
 use treemorph_api::ErrorCode;
 use treemorph_gltf::animated::{AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
-use treemorph_gltf::frames::{EncodeError, max_radii};
+use treemorph_gltf::frames::{EncodeError, FrameMeshes, max_radii};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology};
+use treemorph_verify::{MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::{
     FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
@@ -94,8 +104,8 @@ fn run_morph(
         plan.topology(),
         &spec.render,
         |t, frame| morpher.morph(t, frame),
-        |frame| match meter.measure(frame) {
-            Ok(m) => series.push(&m),
+        |frame, written| match meter.measure(frame) {
+            Ok(m) => series.push(&m, written),
             Err(e) => measure_error = Some(e),
         },
         sink,
@@ -110,8 +120,9 @@ fn run_morph(
 #[derive(Default)]
 struct MorphSeries {
     t: Vec<f32>,
-    floating_branches: Vec<u32>,
-    floating_leaves: Vec<u32>,
+    written: WrittenSeries,
+    constructed_floating_branches: Vec<u32>,
+    constructed_floating_leaves: Vec<u32>,
     mtsw: Vec<f32>,
     max_jump: Vec<f32>,
 }
@@ -120,39 +131,40 @@ impl MorphSeries {
     fn with_capacity(n: usize) -> MorphSeries {
         MorphSeries {
             t: Vec::with_capacity(n),
-            floating_branches: Vec::with_capacity(n),
-            floating_leaves: Vec::with_capacity(n),
+            written: WrittenSeries::with_capacity(n),
+            constructed_floating_branches: Vec::with_capacity(n),
+            constructed_floating_leaves: Vec::with_capacity(n),
             mtsw: Vec::with_capacity(n),
             max_jump: Vec::with_capacity(n),
         }
     }
 
-    fn push(&mut self, m: &treemorph_morph::FrameMetrics) {
+    fn push(&mut self, m: &treemorph_morph::FrameMetrics, written: &Report) {
         self.t.push(m.t);
-        self.floating_branches.push(m.floating_branches);
-        self.floating_leaves.push(m.floating_leaves);
+        self.written.push(written);
+        self.constructed_floating_branches.push(m.floating_branches);
+        self.constructed_floating_leaves.push(m.floating_leaves);
         self.mtsw.push(m.mtsw);
         self.max_jump.push(m.max_jump);
     }
 
     /// `metrics.json` and the job's summary metrics.
     fn into_json(self, frames: u32, endpoint: treemorph_morph::EndpointError) -> (Value, Value) {
-        let summary = json!({
-            "floating_branches": self.floating_branches.iter().max().copied().unwrap_or(0),
-            "floating_leaves": self.floating_leaves.iter().max().copied().unwrap_or(0),
+        let mut summary = json!({
             "max_jump": self.max_jump.iter().copied().fold(0.0f32, f32::max),
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
-        let metrics = json!({
+        let mut metrics = json!({
             "kind": "morph",
             "frames": frames,
             "t": self.t,
-            "floating_branches": self.floating_branches,
-            "floating_leaves": self.floating_leaves,
+            "constructed_floating_branches": self.constructed_floating_branches,
+            "constructed_floating_leaves": self.constructed_floating_leaves,
             "mtsw": self.mtsw,
             "max_jump": self.max_jump,
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
+        self.written.write_into(&mut metrics, &mut summary);
         (metrics, summary)
     }
 }
@@ -178,7 +190,7 @@ fn run_sketch(
         plan.topology(),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
-        |frame| series.push(meter.measure(frame)),
+        |frame, written| series.push(meter.measure(frame), written),
         sink,
     )?;
     let (metrics, summary) = series
@@ -190,8 +202,9 @@ fn run_sketch(
 #[derive(Default)]
 struct SketchSeries {
     frechet: Vec<f32>,
-    floating_branches: Vec<usize>,
-    floating_leaves: Vec<usize>,
+    written: WrittenSeries,
+    constructed_floating_branches: Vec<usize>,
+    constructed_floating_leaves: Vec<usize>,
     last: Option<treemorph_sketch::FrameMetrics>,
 }
 
@@ -199,16 +212,18 @@ impl SketchSeries {
     fn with_capacity(n: usize) -> SketchSeries {
         SketchSeries {
             frechet: Vec::with_capacity(n),
-            floating_branches: Vec::with_capacity(n),
-            floating_leaves: Vec::with_capacity(n),
+            written: WrittenSeries::with_capacity(n),
+            constructed_floating_branches: Vec::with_capacity(n),
+            constructed_floating_leaves: Vec::with_capacity(n),
             last: None,
         }
     }
 
-    fn push(&mut self, m: treemorph_sketch::FrameMetrics) {
+    fn push(&mut self, m: treemorph_sketch::FrameMetrics, written: &Report) {
         self.frechet.push(m.frechet_normalised);
-        self.floating_branches.push(m.floating_branches);
-        self.floating_leaves.push(m.floating_leaves);
+        self.written.push(written);
+        self.constructed_floating_branches.push(m.floating_branches);
+        self.constructed_floating_leaves.push(m.floating_leaves);
         self.last = Some(m);
     }
 
@@ -216,22 +231,96 @@ impl SketchSeries {
     /// was measured.
     fn into_json(self, frames: u32) -> Option<(Value, Value)> {
         let last = self.last?;
-        let summary = json!({
+        let mut summary = json!({
             "final_iou": last.iou,
             "final_frechet": last.frechet_normalised,
-            "floating_branches": self.floating_branches.iter().max().copied().unwrap_or(0),
-            "floating_leaves": self.floating_leaves.iter().max().copied().unwrap_or(0),
         });
-        let metrics = json!({
+        let mut metrics = json!({
             "kind": "sketch",
             "frames": frames,
             "frechet": self.frechet,
             "final_iou": last.iou,
             "final_frechet": last.frechet_normalised,
-            "floating_branches": self.floating_branches,
-            "floating_leaves": self.floating_leaves,
+            "constructed_floating_branches": self.constructed_floating_branches,
+            "constructed_floating_leaves": self.constructed_floating_leaves,
         });
+        self.written.write_into(&mut metrics, &mut summary);
         Some((metrics, summary))
+    }
+}
+
+/// The output-level counts of every frame as written.
+#[derive(Default)]
+struct WrittenSeries {
+    floating_branches: Vec<u32>,
+    floating_leaves: Vec<u32>,
+}
+
+impl WrittenSeries {
+    fn with_capacity(n: usize) -> WrittenSeries {
+        WrittenSeries {
+            floating_branches: Vec::with_capacity(n),
+            floating_leaves: Vec::with_capacity(n),
+        }
+    }
+
+    fn push(&mut self, report: &Report) {
+        self.floating_branches.push(report.floating_branches);
+        self.floating_leaves.push(report.floating_leaves);
+    }
+
+    /// Adds the per-frame counts to `metrics.json` and their maxima to the
+    /// summary, under the names both have always had.
+    fn write_into(self, metrics: &mut Value, summary: &mut Value) {
+        let max = |v: &[u32]| v.iter().max().copied().unwrap_or(0);
+        summary["floating_branches"] = max(&self.floating_branches).into();
+        summary["floating_leaves"] = max(&self.floating_leaves).into();
+        metrics["floating_branches"] = self.floating_branches.into();
+        metrics["floating_leaves"] = self.floating_leaves.into();
+    }
+}
+
+/// The output-level plausibility check of each frame as written
+/// (`treemorph-verify`).
+struct OutputCheck {
+    check: Plausibility,
+    options: PlausibilityOptions,
+    /// Meshes of its own, for jobs that write neither per-frame GLBs nor
+    /// the stream (only the animated GLB): the per-frame GLB's geometry.
+    own: Option<FrameMeshes>,
+}
+
+impl OutputCheck {
+    fn new(
+        topology: &FrameTopology,
+        probed: &Probed,
+        encoders: &Encoders,
+    ) -> Result<OutputCheck, JobError> {
+        let own = (encoders.glb.is_none() && encoders.stream.is_none())
+            .then(|| FrameMeshes::new(topology, &probed.radii, &FrameGlbOptions::default().mesh))
+            .transpose()
+            .map_err(encode)?;
+        Ok(OutputCheck {
+            check: Plausibility::new(),
+            options: PlausibilityOptions::default(),
+            own,
+        })
+    }
+
+    /// Checks `frame`, just encoded by `encoders`, on the meshes written.
+    fn measure(&mut self, frame: &Frame, encoders: &Encoders) -> Result<Report, JobError> {
+        if let Some(own) = &mut self.own {
+            own.mesh(frame).map_err(encode)?;
+        }
+        let meshes = match (&encoders.glb, &encoders.stream, &self.own) {
+            (Some(glb), _, _) => glb.meshes(),
+            (None, Some(stream), _) => stream.meshes(),
+            (None, None, Some(own)) => own,
+            (None, None, None) => return Err(JobError::internal("no meshes to check")),
+        };
+        self.check
+            .check(&MeshView::of_frame_meshes(meshes), &self.options)
+            .map_err(|e| JobError::internal(format_args!("checking frame {}: {e}", frame.t)))
     }
 }
 
@@ -411,19 +500,21 @@ impl Encoders {
     }
 }
 
-/// Computes the spec's frames with `eval`, measures each with `measure`
-/// and publishes them through `sink` in every requested format.
+/// Computes the spec's frames with `eval`, publishes them through `sink`
+/// in every requested format, and measures each with `measure` (given the
+/// output-level check of the frame as written).
 fn render(
     topology: &FrameTopology,
     spec: &RenderSpec,
     mut eval: impl FnMut(f32, &mut Frame),
-    mut measure: impl FnMut(&Frame),
+    mut measure: impl FnMut(&Frame, &Report),
     sink: &mut dyn JobSink,
 ) -> Result<Rendered, JobError> {
     let frames = spec.frames;
     let mut frame = Frame::default();
     let probed = probe(&mut eval, &mut frame);
     let mut encoders = Encoders::new(topology, spec, &probed)?;
+    let mut output_check = OutputCheck::new(topology, &probed, &encoders)?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
     for i in 0..frames {
@@ -447,7 +538,8 @@ fn render(
         let published_ms = ms_since(started);
         // Metrics and the animated GLB's keyframes wait until the frame is
         // out: clients see it sooner.
-        measure(&frame);
+        let written = output_check.measure(&frame, &encoders)?;
+        measure(&frame, &written);
         encoders.keyframe(i, &frame)?;
         tracing::debug!(
             frame = i,

@@ -344,3 +344,26 @@ fn an_input_tree_analyses_once_and_keeps_the_result() {
     assert!(given.is_analysed());
     assert_eq!(*given.analysis().unwrap(), fresh);
 }
+
+#[test]
+fn metrics_count_floating_parts_on_the_meshes_written() {
+    // `floating_leaves` is measured on the written meshes (treemorph-verify);
+    // the construction's own count stays as `constructed_floating_leaves`.
+    // The random-leaf baseline moves leaves on straight lines through the
+    // air, which the written meshes show.
+    let JobRequest::Morph(mut morph) = morph_request(5, Outputs::default()) else {
+        unreachable!()
+    };
+    morph.options.leaves = treemorph_api::jobs::LeafAssignment::Random;
+    let mut sink = MemorySink::default();
+    run(&JobRequest::Morph(morph), &morph_trees(), &mut sink).unwrap();
+    let metrics: serde_json::Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    let measured = metrics["floating_leaves"].as_array().unwrap();
+    let constructed = metrics["constructed_floating_leaves"].as_array().unwrap();
+    assert_eq!((measured.len(), constructed.len()), (5, 5));
+    assert_eq!(measured[0], 0, "{metrics}");
+    assert!(
+        measured.iter().any(|v| v.as_u64().unwrap() > 0),
+        "{metrics}"
+    );
+}

@@ -242,7 +242,10 @@ async fn max_frames_above_600_is_honoured_end_to_end() {
     assert_eq!(done["frames_ready"], 650, "{done}");
     let (s, e) = app.morph(&a, &b, 701).await;
     assert_eq!((s, error_code(&e)), (422, "invalid_request"), "{e}");
-    assert!(e["error"]["message"].as_str().unwrap().contains("700"), "{e}");
+    assert!(
+        e["error"]["message"].as_str().unwrap().contains("700"),
+        "{e}"
+    );
     app.stop().await;
 }
 

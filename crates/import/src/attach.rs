@@ -129,7 +129,14 @@ impl Grid {
         for dx in -rings..=rings {
             for dy in -rings..=rings {
                 for dz in -rings..=rings {
-                    let Some(list) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                    // Saturating: cell keys of far-flung (hostile) coordinates sit
+                    // at the ends of i32.
+                    let key = [
+                        c[0].saturating_add(dx),
+                        c[1].saturating_add(dy),
+                        c[2].saturating_add(dz),
+                    ];
+                    let Some(list) = self.cells.get(&key) else {
                         continue;
                     };
                     for &id in list {

@@ -202,6 +202,8 @@ fn run_sketch(
 #[derive(Default)]
 struct SketchSeries {
     frechet: Vec<f32>,
+    stretch: Vec<f32>,
+    first_depth_width: Option<f32>,
     written: WrittenSeries,
     constructed_floating_branches: Vec<usize>,
     constructed_floating_leaves: Vec<usize>,
@@ -212,6 +214,8 @@ impl SketchSeries {
     fn with_capacity(n: usize) -> SketchSeries {
         SketchSeries {
             frechet: Vec::with_capacity(n),
+            stretch: Vec::with_capacity(n),
+            first_depth_width: None,
             written: WrittenSeries::with_capacity(n),
             constructed_floating_branches: Vec::with_capacity(n),
             constructed_floating_leaves: Vec::with_capacity(n),
@@ -221,6 +225,8 @@ impl SketchSeries {
 
     fn push(&mut self, m: treemorph_sketch::FrameMetrics, written: &Report) {
         self.frechet.push(m.frechet_normalised);
+        self.stretch.push(m.max_stretch);
+        self.first_depth_width.get_or_insert(m.crown_depth_width);
         self.written.push(written);
         self.constructed_floating_branches.push(m.floating_branches);
         self.constructed_floating_leaves.push(m.floating_leaves);
@@ -231,9 +237,12 @@ impl SketchSeries {
     /// was measured.
     fn into_json(self, frames: u32) -> Option<(Value, Value)> {
         let last = self.last?;
+        let max_stretch = self.stretch.iter().copied().fold(0.0f32, f32::max);
+        let before = self.first_depth_width.unwrap_or(last.crown_depth_width);
         let mut summary = json!({
             "final_iou": last.iou,
             "final_frechet": last.frechet_normalised,
+            "max_stretch": max_stretch,
         });
         let mut metrics = json!({
             "kind": "sketch",
@@ -241,6 +250,10 @@ impl SketchSeries {
             "frechet": self.frechet,
             "final_iou": last.iou,
             "final_frechet": last.frechet_normalised,
+            "stretch": self.stretch,
+            "max_stretch": max_stretch,
+            "crown_depth_width_before": before,
+            "crown_depth_width_after": last.crown_depth_width,
             "constructed_floating_branches": self.constructed_floating_branches,
             "constructed_floating_leaves": self.constructed_floating_leaves,
         });

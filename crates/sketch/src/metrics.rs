@@ -25,6 +25,18 @@
 //!   distances at that shift and its ±3 neighbours). The distance is in NDC;
 //!   normalised, it is divided by the crown's screen diagonal.
 //!
+//! # Natural deformation
+//! - **stretch**: `max |len / rest − 1|` over the branch segments that do
+//!   not wilt (a wilting subtree shrinks on purpose, so it is exempt and
+//!   counted apart by the plan). Bending rotates segments at their joints
+//!   and leaves this near 0; a cage that squeezes or pulls a crown shows
+//!   here.
+//! - **crown depth/width**: the visible leaf anchors' 5–95th-percentile
+//!   extent along the view direction over that along the camera's right
+//!   axis. Compared before and after a job it shows a crown flattened into
+//!   a slab facing the camera (the ratio falling) or squeezed sideways
+//!   with its depth kept (the ratio rising).
+//!
 //! # Floating parts (the morph pipeline's definitions)
 //! - a **floating branch**: a chain whose junction is farther than ε from
 //!   its parent chain's polyline plus the radius there (a root chain: from
@@ -42,6 +54,13 @@ use treemorph_tree::geom::closest_on_segment;
 use crate::frechet::discrete_frechet_with;
 use crate::plan::SketchPlan;
 use crate::polygon;
+
+/// The 5th-to-95th-percentile spread of `v` (reordered).
+fn spread(v: &mut [f32]) -> f32 {
+    v.sort_unstable_by(f32::total_cmp);
+    let at = |q: f32| v[((v.len() - 1) as f32 * q).round() as usize];
+    at(0.95) - at(0.05)
+}
 
 /// Samples per curve for the Fréchet distance.
 const SAMPLES: usize = 128;
@@ -68,6 +87,13 @@ pub struct FrameMetrics {
     pub floating_branches: usize,
     /// Leaves off their branch (must be 0).
     pub floating_leaves: usize,
+    /// Largest relative change of a branch segment's length from its rest
+    /// length, `max |len / rest − 1|`, over segments that do not wilt
+    /// (see [`SketchMetrics::stretch`]).
+    pub max_stretch: f32,
+    /// The crown's depth over its width seen from the view (see
+    /// [`SketchMetrics::crown_depth_width`]).
+    pub crown_depth_width: f32,
 }
 
 /// Shape measurements of any frame seen from the plan's view (e.g. one of
@@ -131,7 +157,62 @@ impl<'p> SketchMetrics<'p> {
             spill: shape.spill,
             floating_branches,
             floating_leaves,
+            max_stretch: self.stretch(frame),
+            crown_depth_width: self.crown_depth_width(frame),
         }
+    }
+
+    /// `max |len / rest − 1|` over the frame's branch segments (node to
+    /// parent) whose nodes do not wilt: wilting subtrees shrink to nothing
+    /// on purpose ([`SketchPlan::wilting_nodes`] says which). Segments
+    /// shorter than 10⁻⁶ × the tree height at rest are skipped. 0 for a
+    /// frame of another topology.
+    pub fn stretch(&self, frame: &Frame) -> f32 {
+        let plan = self.plan;
+        let rest = &plan.rest.positions;
+        if frame.positions.len() != rest.len() {
+            return 0.0;
+        }
+        let tiny = 1e-6 * plan.height;
+        let mut worst = 0.0f32;
+        for (i, parent) in plan.topology.parents.iter().enumerate() {
+            let Some(p) = parent.map(|p| p as usize) else {
+                continue;
+            };
+            if plan.node_wilts[i] {
+                continue;
+            }
+            let r = rest[i].distance(rest[p]);
+            if r > tiny {
+                let l = frame.positions[i].distance(frame.positions[p]);
+                worst = worst.max((l / r - 1.0).abs());
+            }
+        }
+        worst
+    }
+
+    /// The crown's depth over its width seen from the plan's view: the
+    /// extents of the visible leaf anchors along the camera's forward and
+    /// right axes, each from the 5th to the 95th percentile (a few stray
+    /// leaves do not set the crown's size). A crown flattened into a slab
+    /// facing the camera has a small ratio; an untouched round crown
+    /// about 1. 0 when the frame has fewer than 2 visible leaves.
+    pub fn crown_depth_width(&self, frame: &Frame) -> f32 {
+        let cam = &self.plan.camera;
+        let right = cam.world_delta(Vec2::X, 1.0).normalize_or_zero();
+        let forward = cam.forward();
+        let (mut along_right, mut along_forward): (Vec<f32>, Vec<f32>) = frame
+            .leaves
+            .iter()
+            .filter(|l| l.width > 0.0 && l.height > 0.0)
+            .map(|l| (l.anchor.dot(right), l.anchor.dot(forward)))
+            .unzip();
+        if along_right.len() < 2 {
+            return 0.0;
+        }
+        let width = spread(&mut along_right);
+        let depth = spread(&mut along_forward);
+        if width > 0.0 { depth / width } else { 0.0 }
     }
 
     /// Fréchet distance and IoU of any frame's foliage against the

@@ -38,6 +38,7 @@ use support::{Loaded, check_frames, load_all, max_floating, third_party_dir, wri
 use treemorph_morph::{MorphOptions, MorphPlan, Morpher};
 use treemorph_sketch::{Sketch, SketchMetrics, SketchOptions, SketchPlan, Sketcher, View};
 use treemorph_tree::{Frame, FrameTopology};
+use treemorph_verify::geometry::point_triangle_sq;
 use treemorph_verify::{Plausibility, PlausibilityOptions, read_glb};
 
 /// The crown shapes every tree is sketched into.
@@ -200,55 +201,85 @@ fn morph_cell(source: &Loaded, target: Option<&Loaded>, failures: &mut Failures)
     format!(" {} | {fl}/{fb} | {start:.3} / {end:.3} |", target.name)
 }
 
-/// The larger of the two directed 95th-percentile distances between the
-/// morph's frame at `t` and `input`'s own frame, both as written (branch
-/// and leaf vertices), in percent of the input's height.
+/// The larger of the directed 95th-percentile distances between the
+/// morph's frame at `t` and `input`'s own frame, both as written: from
+/// each non-degenerate triangle's centroid to the other mesh's surface,
+/// branches to branches and leaves to leaves, in percent of the input's
+/// height. Degenerate triangles are the collapsed parts a morph keeps for
+/// the other tree; they are not surface either tree shows.
 fn endpoint_p95(topology: &FrameTopology, morpher: &mut Morpher, t: f32, input: &Loaded) -> f32 {
-    let written = |topology: &FrameTopology, eval: &mut dyn FnMut(f32, &mut Frame)| {
-        let mut points = Vec::new();
-        write_frames(
-            topology,
-            2,
-            |time, f| eval(time, f),
-            |frame, view| {
-                if frame.t == t {
-                    points = view
-                        .branch_positions
-                        .iter()
-                        .chain(view.leaf_positions)
-                        .copied()
-                        .collect();
-                }
-            },
-        );
-        points
-    };
-    let morphed = written(topology, &mut |time, f| morpher.morph(time, f));
-    let own = written(&FrameTopology::of_tree(&input.tree), &mut |time, f| {
+    let morphed = written_surface(topology, t, &mut |time, f| morpher.morph(time, f));
+    let own = written_surface(&FrameTopology::of_tree(&input.tree), t, &mut |time, f| {
         *f = Frame::of_tree(&input.tree);
         f.t = time;
     });
-    let height = input.tree.stats().height;
-    100.0 * p95_distance(&morphed, &own).max(p95_distance(&own, &morphed)) / height
+    let worst = [(&morphed.0, &own.0), (&morphed.1, &own.1)]
+        .into_iter()
+        .flat_map(|(a, b)| [p95_distance(a, b), p95_distance(b, a)])
+        .fold(0.0f32, f32::max);
+    100.0 * worst / input.tree.stats().height
 }
 
-/// The 95th percentile over `from` of the distance to the nearest point of
-/// `to`.
-fn p95_distance(from: &[Vec3], to: &[Vec3]) -> f32 {
-    let points: Vec<[f32; 3]> = to.iter().map(|p| p.to_array()).collect();
+type Triangles = Vec<[Vec3; 3]>;
+
+/// The non-degenerate branch and leaf triangles of a sequence's frame at
+/// `t` (0 or 1), written as the runner writes it.
+fn written_surface(
+    topology: &FrameTopology,
+    t: f32,
+    eval: &mut dyn FnMut(f32, &mut Frame),
+) -> (Triangles, Triangles) {
+    let triangles = |positions: &[Vec3], indices: &[u32]| -> Triangles {
+        indices
+            .chunks_exact(3)
+            .map(|c| [0, 1, 2].map(|k| positions[c[k] as usize]))
+            .filter(|[a, b, c]| (*b - *a).cross(*c - *a).length_squared() > 1e-14)
+            .collect()
+    };
+    let mut surface = (Vec::new(), Vec::new());
+    write_frames(
+        topology,
+        2,
+        |time, f| eval(time, f),
+        |frame, view| {
+            if frame.t == t {
+                surface = (
+                    triangles(view.branch_positions, view.branch_indices),
+                    triangles(view.leaf_positions, view.leaf_indices),
+                );
+            }
+        },
+    );
+    surface
+}
+
+/// The 95th percentile over the centroids of `from` of the distance to
+/// the surface `to` (exact to the triangles of the 16 nearest centroids:
+/// an upper bound where a far-centred triangle would be nearer).
+fn p95_distance(from: &[[Vec3; 3]], to: &[[Vec3; 3]]) -> f32 {
+    if from.is_empty() || to.is_empty() {
+        return if from.len() == to.len() {
+            0.0
+        } else {
+            f32::INFINITY
+        };
+    }
+    let centroid = |t: &[Vec3; 3]| (t[0] + t[1] + t[2]) / 3.0;
+    let points: Vec<[f32; 3]> = to.iter().map(|t| centroid(t).to_array()).collect();
     let index: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&points);
+    let k = std::num::NonZero::new(16).unwrap();
     let mut d: Vec<f32> = from
         .iter()
-        .map(|p| {
+        .map(|t| {
+            let p = centroid(t);
             index
-                .nearest_one::<SquaredEuclidean>(&p.to_array())
-                .distance
+                .nearest_n::<SquaredEuclidean>(&p.to_array(), k)
+                .iter()
+                .map(|n| point_triangle_sq(p, to[n.item as usize]))
+                .fold(f32::INFINITY, f32::min)
                 .sqrt()
         })
         .collect();
-    if d.is_empty() {
-        return 0.0;
-    }
     d.sort_by(f32::total_cmp);
     d[(d.len() - 1) * 95 / 100]
 }

@@ -707,14 +707,12 @@ impl SliceTree {
                 order.push(c as usize);
             }
         }
-        // Radii: the lower quartile of the distances of each slice's
-        // original vertices to the segments at its kept node (slices between
-        // kept nodes count for the segment they lie on). Not the mean: where
+        // Radii from the distances of each slice's original vertices to the
+        // segments at its kept node (slices between kept nodes count for the
+        // segment they lie on), robustly (`robust_radius`): where
         // contraction lost thin twigs, one node owns a clump of them spread
-        // a metre around it, and the mean made a tube that wide — leaves on
-        // those twigs ended up buried inside it. On a true tube the
-        // distances are all about the radius, and the quartile stays there
-        // (a slightly off-centre axis lowers it by less than the offset).
+        // a metre around it, and their mean made a tube that wide — the
+        // leaves on those twigs ended up buried inside it.
         let mut owner = vec![NONE; self.parent.len()];
         for &s in &order {
             owner[s] = if keep[s] {
@@ -747,7 +745,7 @@ impl SliceTree {
         }
         for (r, d) in piece.radii.iter_mut().zip(&mut dists) {
             if !d.is_empty() {
-                *r = lower_quartile(d);
+                *r = robust_radius(d);
             }
         }
         piece
@@ -779,25 +777,46 @@ impl SliceTree {
     }
 }
 
-/// The lower quartile of `d` (reordered; not empty).
-fn lower_quartile(d: &mut [f32]) -> f32 {
+/// A slice's radius from its vertices' distances to the axis (reordered;
+/// not empty): their mean, unless the mean is more than twice the lower
+/// quartile — a clump of merged twigs, a few vertices of the node's own
+/// bark near the axis and many a metre out — then the lower quartile. On a
+/// tube all distances are about the radius; on an end cap they spread
+/// from 0 to the radius (mean ≈ 0.67 r, quartile ≈ 0.5 r), so the mean
+/// stays right there.
+fn robust_radius(d: &mut [f32]) -> f32 {
+    let mean = d.iter().map(|&x| f64::from(x)).sum::<f64>() / d.len() as f64;
     let k = (d.len() - 1) / 4;
-    *d.select_nth_unstable_by(k, f32::total_cmp).1
+    let quartile = *d.select_nth_unstable_by(k, f32::total_cmp).1;
+    if mean > 2.0 * f64::from(quartile) {
+        quartile
+    } else {
+        mean as f32
+    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::lower_quartile;
+    use super::robust_radius;
 
     /// Regression: a node owning a clump of merged twigs (a few vertices of
     /// its own bark near the axis, many a metre out) measured the clump's
-    /// spread as its radius.
+    /// spread as its radius, and buried the twigs' leaves in its tube.
     #[test]
     fn a_clump_of_twigs_does_not_widen_the_radius() {
-        let mut d = vec![0.1, 0.11, 0.12, 0.1, 0.9, 1.0, 1.1, 0.95, 0.1, 0.12, 0.11];
-        let r = lower_quartile(&mut d);
+        let mut d = vec![0.1, 0.11, 0.12, 0.1, 0.9, 1.0, 1.1, 0.95, 0.1, 0.12, 1.5];
+        let r = robust_radius(&mut d);
         assert!((0.1..=0.12).contains(&r), "{r}");
-        let mut tube = vec![0.2; 40];
-        assert_eq!(lower_quartile(&mut tube), 0.2);
+    }
+
+    /// A tube keeps its radius, and an end cap (distances from 0 to the
+    /// radius, as at the root) is not measured thin.
+    #[test]
+    fn tubes_and_caps_keep_their_radius() {
+        let mut tube: Vec<f32> = (0..40).map(|i| 0.2 + 0.001 * (i % 3) as f32).collect();
+        assert!((robust_radius(&mut tube) - 0.201).abs() < 0.002);
+        let mut cap: Vec<f32> = (1..=100).map(|i| 0.3 * (i as f32 / 100.0).sqrt()).collect();
+        let r = robust_radius(&mut cap);
+        assert!(r > 0.18, "{r}");
     }
 }

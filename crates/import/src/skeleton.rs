@@ -22,10 +22,6 @@
 //!    child's first ring centre lies on its parent's axis — and joined to it
 //!    by a short branch otherwise.
 //!
-//! 5. **Pipe model.** No node is thicker than its parent: a radius
-//!    measured larger can only come from a node that owns a clump of
-//!    merged twigs (see `contract`), and its tube would bury their leaves.
-//!
 //! The result is always one connected tree. Gaps larger than the attaching
 //! end's radius plus the target's radius are reported as warnings: the file
 //! probably holds a separate object.
@@ -123,7 +119,6 @@ pub(crate) fn assemble(
     let joined = soup.join(&joins, root, warnings);
     let mut nodes = soup.breadth_first(&joined)?;
     floor_radii(&mut nodes);
-    pipe_model(&mut nodes);
     Ok(nodes)
 }
 
@@ -511,20 +506,6 @@ fn floor_radii(nodes: &mut [Node]) {
     for node in nodes {
         if node.radius.is_nan() || node.radius < floor {
             node.radius = floor;
-        }
-    }
-}
-
-/// No branch is thicker than the branch it grows from (the pipe model:
-/// wood only thins toward the tips). `nodes` are in breadth-first order,
-/// parents first. A measured radius can only break this where the
-/// measure went wrong — a node owning a clump of twigs that contraction
-/// merged — and there a tube as wide as the clump would swallow the leaves
-/// on those twigs.
-fn pipe_model(nodes: &mut [Node]) {
-    for i in 0..nodes.len() {
-        if let Some(p) = nodes[i].parent {
-            nodes[i].radius = nodes[i].radius.min(nodes[p as usize].radius);
         }
     }
 }

@@ -137,19 +137,3 @@ fn closest_points_on_segments() {
     let (s, _) = closest_on_segment(Vec3::ONE, Vec3::ONE, Vec3::ONE);
     assert_eq!(s, 0.0);
 }
-
-/// Regression: contraction of Modular Tree's welded barks left crown nodes
-/// 0.5–1.2 m thick on branches 0.15 m thick, and the leaves on them were
-/// buried inside the tube (30 floating leaves at frame 0 of one tree).
-#[test]
-fn no_node_is_thicker_than_its_parent() {
-    let mut nodes = vec![
-        node(0.0, 0.0, 0.0, 0.4, None),
-        node(0.0, 2.0, 0.0, 0.15, Some(0)),
-        node(1.0, 3.0, 0.0, 0.9, Some(1)),
-        node(2.0, 3.5, 0.0, 0.05, Some(2)),
-    ];
-    pipe_model(&mut nodes);
-    let radii: Vec<f32> = nodes.iter().map(|n| n.radius).collect();
-    assert_eq!(radii, [0.4, 0.15, 0.15, 0.05]);
-}

@@ -73,7 +73,7 @@
 //!    projection of the object-space silhouette the paper detects, the hull
 //!    vertices with `n · (p − C) = 0`. Every cage keeps, per corner, the
 //!    hull vertex under it (for the lobe deformation); depth is the
-//!    camera-space z of each point and never changes (below).
+//!    camera-space z of each point and is kept (below).
 //! 2. **Crown correspondence** (screen-space arc-length parameterisation).
 //!    Closed sketch: both polygons counter-clockwise, parameterised by
 //!    normalised arc length from their topmost vertex, then the sketch's
@@ -142,16 +142,19 @@
 //! # Frames ([`Sketcher::deform`])
 //! Everything is computed as **displacements in the view plane** (NDC) and
 //! applied at each point's rest depth: a world point moves by
-//! `right · dx · s_x(z) + up · dy · s_y(z)` ([`Camera::world_delta`]), so
-//! depth never changes, and t = 0 (all displacements exactly zero)
-//! reproduces the input bit for bit. At time t: the crown cage moves to
+//! `right · dx · s_x(z) + up · dy · s_y(z)` ([`Camera::world_delta`]) at
+//! constant depth, and t = 0 (all displacements exactly zero) reproduces
+//! the input bit for bit. At time t: the crown cage moves to
 //! `S(t) = S0 + t (S1 − S0)` per corresponding sample; each cage follows
 //! its parent by MVC plus `t ×` its self-adaptive correction; chain targets
 //! follow their control cages; chains are solved order by order, each
 //! junction where the parent chain put it (*forward propagation*: chains
-//! stay connected by construction). Nodes of wilting subtrees then shrink
-//! toward their subtree's junction by the factor `1 − t`, radii too (their
-//! depth changes; nothing else's does). Leaves ride on the branch they grow
+//! stay connected by construction). Then the nodes between a chain's
+//! joints slide along its solved polyline to their rest share of its
+//! length, so segments stretch alike and branches bend at their nodes
+//! (`rigid` module; a node's depth moves within its chain's). Nodes of
+//! wilting subtrees then shrink toward their subtree's junction by the
+//! factor `1 − t`, radii too. Leaves ride on the branch they grow
 //! on: anchor = the deformed branch point at the leaf's parameter + its
 //! offset rotated by the branch's rotation (the shortest arc from its rest
 //! to its deformed direction), orientation rotated likewise; a wilting
@@ -207,6 +210,7 @@ mod options;
 mod plan;
 mod polygon;
 mod prune;
+mod rigid;
 mod sketch;
 mod sketcher;
 mod time;

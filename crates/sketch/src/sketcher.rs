@@ -10,6 +10,7 @@ use crate::error::SketchError;
 use crate::laplacian::{COLS, scratch_for};
 use crate::lobes::{DeformedLobes, LobeBuffers};
 use crate::plan::{SketchPlan, Source};
+use crate::rigid::Rigid;
 use crate::time::clamp_t;
 
 /// Reusable context that deforms the planned tree to any time t ∈ [0, 1]
@@ -24,6 +25,7 @@ pub struct Sketcher<'p> {
     mem: MemBuffer,
     branch_rot: Vec<Quat>,
     lobes: LobeBuffers,
+    rigid: Rigid,
 }
 
 impl<'p> Sketcher<'p> {
@@ -40,6 +42,7 @@ impl<'p> Sketcher<'p> {
             mem: scratch_for(plan.levels.iter().map(|l| &l.ls)),
             branch_rot: vec![Quat::IDENTITY; n],
             lobes: Default::default(),
+            rigid: Rigid::new(plan),
         }
     }
 
@@ -111,6 +114,11 @@ impl<'p> Sketcher<'p> {
                 .zip(&plan.depth)
                 .map(|((&p, &d), &z)| p + plan.camera.world_delta(d, z)),
         );
+        // Segments keep their length (times their chain's growth); t = 0
+        // stays the input bit for bit.
+        if t > 0.0 {
+            self.rigid.apply(plan, &mut frame.positions);
+        }
         frame.radii.clear();
         frame.radii.extend_from_slice(&rest.radii);
 

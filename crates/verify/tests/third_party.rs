@@ -367,7 +367,21 @@ fn sketch_cell(t: &Loaded, shape: &str, failures: &mut Failures) -> (String, Opt
     let mut before = sketcher.frame(0.0);
     before.t = 1.0;
     let before = metrics.shape(&before).iou;
-    let after = metrics.shape(&sketcher.frame(1.0)).iou;
+    let last = sketcher.frame(1.0);
+    let after = metrics.shape(&last).iou;
+    let stretch = support::times(frames())
+        .map(|time| metrics.stretch(&sketcher.frame(time)))
+        .fold(0.0f32, f32::max);
+    let depth_width = (
+        metrics.crown_depth_width(plan.rest_frame()),
+        metrics.crown_depth_width(&last),
+    );
+    eprintln!(
+        "{label}: max_stretch {:.1} %, crown depth/width {:.2} → {:.2}",
+        100.0 * stretch,
+        depth_width.0,
+        depth_width.1
+    );
     failures.check(format!("{label} iou"), after >= 0.8, || {
         format!("{label}: final IoU {after:.3} < 0.8")
     });

@@ -74,6 +74,7 @@ use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Mat, Side};
 use glam::{DVec3, Vec3};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use treemorph_tree::geom::{NONE, distance_to_segment};
 
 use crate::error::ImportError;
@@ -748,6 +749,7 @@ impl SliceTree {
                 *r = robust_radius(d);
             }
         }
+        cap_by_bark(&mut piece, mesh);
         piece
     }
 
@@ -776,6 +778,27 @@ impl SliceTree {
         }
     }
 }
+
+/// No node's tube reaches much beyond the nearest bark: its radius is at
+/// most [`BARK_CAP`] times the distance from its axis point to the
+/// nearest mesh vertex. On a tube the nearest vertex is about a radius
+/// away and nothing changes; where contraction merged a clump of twigs
+/// into one node, its slice's vertices are all far out, and only the
+/// bark around the node's own point says how thick the wood there is.
+fn cap_by_bark(piece: &mut Piece, mesh: &Mesh) {
+    let points: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    let index: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&points);
+    for (r, p) in piece.radii.iter_mut().zip(&piece.points) {
+        let nearest = index
+            .nearest_one::<SquaredEuclidean>(&p.to_array())
+            .distance
+            .sqrt();
+        *r = r.min(BARK_CAP * nearest);
+    }
+}
+
+/// See [`cap_by_bark`].
+const BARK_CAP: f32 = 1.5;
 
 /// A slice's radius from its vertices' distances to the axis (reordered;
 /// not empty): their mean, unless the mean is more than twice the lower

@@ -260,11 +260,14 @@ fn endpoint_p95(topology: &FrameTopology, morpher: &mut Morpher, t: f32, input: 
         *f = Frame::of_tree(&input.tree);
         f.t = time;
     });
+
+    let height = input.tree.stats().height;
+    let step = 0.0025 * height;
     let worst = [(&morphed.0, &own.0), (&morphed.1, &own.1)]
         .into_iter()
-        .flat_map(|(a, b)| [p95_distance(a, b), p95_distance(b, a)])
+        .flat_map(|(a, b)| [p95_distance(a, b, step), p95_distance(b, a, step)])
         .fold(0.0f32, f32::max);
-    100.0 * worst / input.tree.stats().height
+    100.0 * worst / height
 }
 
 type Triangles = Vec<[Vec3; 3]>;
@@ -301,9 +304,12 @@ fn written_surface(
 }
 
 /// The 95th percentile over the centroids of `from` of the distance to
-/// the surface `to` (exact to the triangles of the 16 nearest centroids:
-/// an upper bound where a far-centred triangle would be nearer).
-fn p95_distance(from: &[[Vec3; 3]], to: &[[Vec3; 3]]) -> f32 {
+/// the surface `to`: exact to the triangles owning the 16 nearest of
+/// points sampled over `to` at most `step` apart (vertices, and a
+/// barycentric grid on large triangles: a long tube segment's centroid is
+/// far from most of its surface). An upper bound only where a triangle
+/// with none of those samples would be nearer.
+fn p95_distance(from: &[[Vec3; 3]], to: &[[Vec3; 3]], step: f32) -> f32 {
     if from.is_empty() || to.is_empty() {
         return if from.len() == to.len() {
             0.0
@@ -311,24 +317,46 @@ fn p95_distance(from: &[[Vec3; 3]], to: &[[Vec3; 3]]) -> f32 {
             f32::INFINITY
         };
     }
-    let centroid = |t: &[Vec3; 3]| (t[0] + t[1] + t[2]) / 3.0;
-    let points: Vec<[f32; 3]> = to.iter().map(|t| centroid(t).to_array()).collect();
+    let (points, owner) = surface_samples(to, step);
     let index: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(&points);
     let k = std::num::NonZero::new(16).unwrap();
     let mut d: Vec<f32> = from
         .iter()
         .map(|t| {
-            let p = centroid(t);
+            let p = (t[0] + t[1] + t[2]) / 3.0;
             index
                 .nearest_n::<SquaredEuclidean>(&p.to_array(), k)
                 .iter()
-                .map(|n| point_triangle_sq(p, to[n.item as usize]))
+                .map(|n| point_triangle_sq(p, to[owner[n.item as usize] as usize]))
                 .fold(f32::INFINITY, f32::min)
                 .sqrt()
         })
         .collect();
     d.sort_by(f32::total_cmp);
     d[(d.len() - 1) * 95 / 100]
+}
+
+/// Points on every triangle at most about `step` apart (at most 8
+/// divisions per edge), each with its triangle's index.
+fn surface_samples(triangles: &[[Vec3; 3]], step: f32) -> (Vec<[f32; 3]>, Vec<u32>) {
+    let (mut points, mut owner) = (Vec::new(), Vec::new());
+    for (i, t) in triangles.iter().enumerate() {
+        let longest = t[0]
+            .distance(t[1])
+            .max(t[1].distance(t[2]))
+            .max(t[2].distance(t[0]));
+        let n = ((longest / step).ceil() as usize).clamp(1, 8);
+        for a in 0..=n {
+            for b in 0..=n - a {
+                let (u, v) = (a as f32 / n as f32, b as f32 / n as f32);
+                points.push((t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v).to_array());
+                owner.push(i as u32);
+            }
+        }
+        points.push(((t[0] + t[1] + t[2]) / 3.0).to_array());
+        owner.push(i as u32);
+    }
+    (points, owner)
 }
 
 /// Sketches `t` into `shape`: floating parts on every frame and the crown

@@ -9,6 +9,16 @@
 //! construction-based counts stay, as `constructed_floating_leaves` and
 //! `constructed_floating_branches`.
 //!
+//! # How natural a sketch stays, in `metrics.json`
+//! Measured on every frame written (`treemorph_sketch::SketchMetrics`):
+//! `stretch` per frame and `max_stretch` over the job, the largest
+//! relative change of a branch segment's length from its rest length
+//! (wilting chains shrink on purpose and are left out), and the crown's
+//! depth over its width seen from the sketch's camera before and after
+//! the job, `crown_depth_width_before` and `crown_depth_width_after` (a
+//! crown flattened into a slab facing the camera shows as a falling
+//! ratio). The summary carries `max_stretch`.
+//!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
 //! animation at a few instants to fix what must not change from frame to

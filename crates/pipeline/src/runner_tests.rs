@@ -131,20 +131,7 @@ fn a_morph_job_publishes_every_output_in_order() {
     for key in ["floating_branches", "floating_leaves", "mtsw", "max_jump"] {
         assert_eq!(metrics[key].as_array().unwrap().len(), 6, "{key}");
     }
-    assert!(
-        metrics["floating_branches"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .all(|v| v == 0)
-    );
-    assert!(
-        metrics["floating_leaves"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .all(|v| v == 0)
-    );
+    assert_no_floating(&metrics);
     assert!(metrics["endpoint_error"]["source"].as_f64().unwrap() < 1e-4);
     assert!(metrics["endpoint_error"]["target"].as_f64().unwrap() < 1e-4);
     assert_eq!(outcome.metrics["floating_leaves"], 0);
@@ -203,6 +190,14 @@ fn heart_request(frames: u32) -> JobRequest {
     })
 }
 
+/// Every frame of `metrics.json` counts 0 floating branches and leaves.
+fn assert_no_floating(metrics: &Value) {
+    for key in ["floating_branches", "floating_leaves"] {
+        let counts = metrics[key].as_array().unwrap();
+        assert!(counts.iter().all(|v| v == 0), "{key}: {counts:?}");
+    }
+}
+
 #[test]
 fn a_sketch_job_reaches_the_sketch_without_floating_parts() {
     let trees = HashMap::from([("t".to_owned(), tree(Preset::Maple, 1, 2_000))]);
@@ -212,20 +207,17 @@ fn a_sketch_job_reaches_the_sketch_without_floating_parts() {
     let metrics: Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
     assert_eq!(metrics["frechet"].as_array().unwrap().len(), 5);
     assert!(metrics["final_iou"].as_f64().unwrap() > 0.7, "{metrics}");
-    assert!(
-        metrics["floating_branches"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .all(|v| v == 0)
-    );
-    assert!(
-        metrics["floating_leaves"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .all(|v| v == 0)
-    );
+    assert_no_floating(&metrics);
+    // How natural the deformation stays, measured on the frames.
+    assert_eq!(metrics["stretch"].as_array().unwrap().len(), 5);
+    assert_eq!(metrics["stretch"][0], 0.0, "t = 0 is the input");
+    let max_stretch = metrics["max_stretch"].as_f64().unwrap();
+    assert!(max_stretch.is_finite() && max_stretch >= 0.0, "{metrics}");
+    assert_eq!(outcome.metrics["max_stretch"], metrics["max_stretch"]);
+    for key in ["crown_depth_width_before", "crown_depth_width_after"] {
+        let ratio = metrics[key].as_f64().unwrap();
+        assert!(ratio > 0.1 && ratio < 10.0, "{key} {ratio}");
+    }
 }
 
 #[test]

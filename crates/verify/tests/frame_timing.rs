@@ -11,21 +11,22 @@
 //! `FRAME_TIMING_ONLY=morph` (or `random`, `sketch`) runs one sequence;
 //! `FRAME_TIMING_FAST_ONLY=1` times the fast check alone (for profiling).
 
+mod support;
+
 use std::time::Instant;
 
 use glam::Vec2;
+use support::write_frames;
 use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_generate::{GenerateOptions, Preset, generate};
-use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
-use treemorph_gltf::frames::max_radii;
 use treemorph_morph::{MorphOptions, MorphPlan, Morpher};
 use treemorph_sketch::{Fit, Sketch, SketchOptions, SketchPlan, Sketcher, View};
 use treemorph_tree::{Frame, FrameTopology};
-use treemorph_verify::{MeshView, Plausibility, PlausibilityOptions, Report};
+use treemorph_verify::{Plausibility, PlausibilityOptions, Report};
 
-/// The runner's probes (crates/pipeline/src/runner.rs `PROBES`).
-const PROBES: [f32; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
+/// Frames per sequence.
 const FRAMES: u32 = 9;
+
 fn timed(f: impl FnOnce() -> Report) -> (Report, f64) {
     let started = Instant::now();
     let report = f();
@@ -36,32 +37,20 @@ fn timed(f: impl FnOnce() -> Report) -> (Report, f64) {
 /// the fast check (one context for the sequence, as a job would, and a
 /// fresh one: "cold") and the reference, asserts equal reports and prints
 /// the times.
-fn run(name: &str, topology: &FrameTopology, mut eval: impl FnMut(f32, &mut Frame)) {
+fn run(name: &str, topology: &FrameTopology, eval: impl FnMut(f32, &mut Frame)) {
     if std::env::var("FRAME_TIMING_ONLY").is_ok_and(|only| only != name) {
         return;
     }
-    let mut frame = Frame::default();
-    let mut probes = Vec::new();
-    for &t in &PROBES {
-        eval(t, &mut frame);
-        probes.push(frame.clone());
-    }
-    let radii = max_radii(&probes);
-    let mut writer = FrameGlbWriter::new(topology, &radii, &FrameGlbOptions::default()).unwrap();
     let (mut fast, mut reference) = (Plausibility::new(), Plausibility::new());
     let options = PlausibilityOptions::default();
-    let mut out = Vec::new();
     let (mut fast_sum, mut cold_sum, mut ref_sum) = (0.0, 0.0, 0.0);
-    for i in 0..FRAMES {
-        let t = i as f32 / (FRAMES - 1) as f32;
-        eval(t, &mut frame);
-        writer.write_into(&frame, &mut out).unwrap();
-        let view = MeshView::of_frame_meshes(writer.meshes());
+    write_frames(topology, FRAMES, eval, |frame, view| {
+        let t = frame.t;
         let (a, fast_ms) = timed(|| fast.check(&view, &options).unwrap());
+        fast_sum += fast_ms;
         if std::env::var_os("FRAME_TIMING_FAST_ONLY").is_some() {
             // For profiling the fast check alone.
-            fast_sum += fast_ms;
-            continue;
+            return;
         }
         let (c, cold_ms) = timed(|| Plausibility::of(&view, &options).unwrap());
         let (b, ref_ms) = timed(|| reference.check_reference(&view, &options).unwrap());
@@ -82,7 +71,6 @@ fn run(name: &str, topology: &FrameTopology, mut eval: impl FnMut(f32, &mut Fram
             "{name} t={t}"
         );
         assert_eq!(a, b, "{name} t={t}");
-        fast_sum += fast_ms;
         cold_sum += cold_ms;
         ref_sum += ref_ms;
         eprintln!(
@@ -94,7 +82,7 @@ fn run(name: &str, topology: &FrameTopology, mut eval: impl FnMut(f32, &mut Fram
             a.floating_leaves,
             a.floating_branches,
         );
-    }
+    });
     let n = FRAMES as f64;
     eprintln!(
         "{name:>8} mean ms per frame: fast {:.2}, cold {:.2}, reference {:.2}",

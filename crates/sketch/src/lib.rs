@@ -199,6 +199,7 @@
 
 mod adapt;
 mod correspondence;
+mod depth;
 mod error;
 mod frechet;
 mod laplacian;

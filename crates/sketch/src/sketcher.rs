@@ -6,6 +6,7 @@ use glam::{Quat, Vec2};
 use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameLeaf, Leaf, LeafMaterial, Materials, Node, Tree, TreeParts};
 
+use crate::depth::DepthScale;
 use crate::error::SketchError;
 use crate::laplacian::{COLS, scratch_for};
 use crate::lobes::{DeformedLobes, LobeBuffers};
@@ -26,6 +27,7 @@ pub struct Sketcher<'p> {
     branch_rot: Vec<Quat>,
     lobes: LobeBuffers,
     rigid: Rigid,
+    depth: DepthScale,
 }
 
 impl<'p> Sketcher<'p> {
@@ -43,6 +45,7 @@ impl<'p> Sketcher<'p> {
             branch_rot: vec![Quat::IDENTITY; n],
             lobes: Default::default(),
             rigid: Rigid::new(plan),
+            depth: DepthScale::new(plan),
         }
     }
 
@@ -102,22 +105,20 @@ impl<'p> Sketcher<'p> {
             }
         }
 
-        // Positions in the view plane at rest depth.
+        // Positions: the input at t = 0, bit for bit; else on screen where
+        // the solve put them, caged nodes' depths scaled with the crown's
+        // width (`depth`), and nodes between a chain's joints at their
+        // rest share of its length (`rigid`).
         let rest = &plan.rest;
         frame.t = t;
         frame.bark_blend = 0.0;
-        frame.positions.clear();
-        frame.positions.extend(
-            rest.positions
-                .iter()
-                .zip(&self.node_disp)
-                .zip(&plan.depth)
-                .map(|((&p, &d), &z)| p + plan.camera.world_delta(d, z)),
-        );
-        // Segments keep their length (times their chain's growth); t = 0
-        // stays the input bit for bit.
         if t > 0.0 {
+            self.depth
+                .place(plan, &self.node_disp, &mut frame.positions);
             self.rigid.apply(plan, &mut frame.positions);
+        } else {
+            frame.positions.clear();
+            frame.positions.extend_from_slice(&rest.positions);
         }
         frame.radii.clear();
         frame.radii.extend_from_slice(&rest.radii);

@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
 use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::frames::max_radii;
@@ -84,7 +85,7 @@ pub struct Loaded {
 /// one fails (every tree of the set must import).
 pub fn load_all(dir: &Path) -> Vec<Loaded> {
     glb_files(dir)
-        .iter()
+        .par_iter()
         .map(|path| {
             let name = path.file_stem().unwrap().to_string_lossy().into_owned();
             let bytes = std::fs::read(path).unwrap();

@@ -79,8 +79,8 @@
 //!
 //! # Performance
 //! Reading and the tube-soup path are linear in the mesh size; contraction
-//! runs on a proxy of at most [`ImportOptions::contraction_vertices`]
-//! vertices (40,000 by default) whatever the input size. See
+//! runs on a proxy of a third of the mesh's vertices, between
+//! [`ImportOptions::contraction_vertices`] (40,000 by default) and 150,000. See
 //! `examples/import_bench.rs` (inputs from [`bench::bench_glb`]) for the
 //! figures on 10,000-branch, 5,000-leaf trees.
 

@@ -36,10 +36,11 @@ pub struct ImportOptions {
     /// Longest side of a texture image, pixels (default 4,096). Larger
     /// images are refused before they are decoded.
     pub max_texture_side: u32,
-    /// Vertex budget of the simplified proxy that mesh contraction runs on
-    /// (default 40,000). Welded meshes with more vertices are clustered
-    /// first (see the crate docs); larger budgets are slower and follow
-    /// thin twigs more closely.
+    /// Smallest vertex budget of the simplified proxy that mesh contraction
+    /// runs on (default 40,000; the budget is a third of the mesh's
+    /// vertices, up to 150,000, when that is more). Welded meshes with
+    /// more vertices are clustered first (see the crate docs); larger
+    /// budgets are slower and follow thin twigs more closely.
     pub contraction_vertices: usize,
     /// Laplacian contraction iterations (default 6, at most 32).
     pub contraction_iterations: u32,

@@ -2,6 +2,9 @@
 //! at test time by `tools/third-party-trees` from pinned packages): what a
 //! user receives, measured on the meshes we write.
 //!
+//! - the imported tree, as written, covers the original bark and no more:
+//!   both ways, the 95th percentile of the distances between the two
+//!   surfaces is at most 1 % of the tree's height;
 //! - every original GLB, frame 0 of every imported tree, every frame of
 //!   cross-family morphs and every frame of sketches into six crown shapes:
 //!   0 floating leaves and 0 floating branch pieces by the output-level
@@ -127,7 +130,7 @@ fn third_party_trees_meet_the_acceptance_figures() {
     let mut table = String::new();
     writeln!(
         table,
-        "| tree | family | branches | leaves | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | {} |",
+        "| tree | family | branches | leaves | import p95 wood→bark / bark→wood (% h) | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | {} |",
         SHAPES.join(" IoU before → after (max fl/fb) | ")
     )
     .unwrap();
@@ -194,6 +197,18 @@ fn tree_row(t: &Loaded, failures: &mut Failures) -> String {
         f.t = time;
     });
     let (fl, fb, gap) = max_floating(&zero);
+    let (extra, lost) = import_fidelity(t);
+    failures.check(
+        format!("{} import fidelity", t.name),
+        extra <= 1.0 && lost <= 1.0,
+        || {
+            format!(
+                "{}: the imported tree's written wood is {extra:.2} % of its height from the original bark, \
+                 the bark {lost:.2} % from the wood (p95)",
+                t.name
+            )
+        },
+    );
     failures.check(
         format!("{} frame 0 floating", t.name),
         fl == 0 && fb == 0,
@@ -205,11 +220,31 @@ fn tree_row(t: &Loaded, failures: &mut Failures) -> String {
         },
     );
     format!(
-        "| {} | {} | {} | {} | {fl}/{fb} |",
+        "| {} | {} | {} | {} | {extra:.2} / {lost:.2} | {fl}/{fb} |",
         t.name,
         t.family.name(),
         t.tree.skeleton().len() - 1,
         t.tree.leaves().len()
+    )
+}
+
+/// How far the imported tree's wood, as written, is from the original
+/// GLB's bark (tubes fatter than the bark, or wood where there was none)
+/// and the bark from the wood (bark the skeleton lost): the directed
+/// 95th-percentile surface distances, in percent of the tree's height.
+fn import_fidelity(t: &Loaded) -> (f32, f32) {
+    let original = read_glb(&t.bytes).unwrap();
+    let bark = triangles(&original.branch_positions, &original.branch_indices);
+    let written = written_surface(&FrameTopology::of_tree(&t.tree), 0.0, &mut |time, f| {
+        *f = Frame::of_tree(&t.tree);
+        f.t = time;
+    })
+    .0;
+    let height = t.tree.stats().height;
+    let step = 0.0025 * height;
+    (
+        100.0 * p95_distance(&written, &bark, step) / height,
+        100.0 * p95_distance(&bark, &written, step) / height,
     )
 }
 
@@ -293,6 +328,15 @@ fn endpoint_p95(topology: &FrameTopology, morpher: &mut Morpher, t: f32, input: 
 
 type Triangles = Vec<[Vec3; 3]>;
 
+/// The non-degenerate triangles of a mesh.
+fn triangles(positions: &[Vec3], indices: &[u32]) -> Triangles {
+    indices
+        .chunks_exact(3)
+        .map(|c| [0, 1, 2].map(|k| positions[c[k] as usize]))
+        .filter(|[a, b, c]| (*b - *a).cross(*c - *a).length_squared() > 1e-14)
+        .collect()
+}
+
 /// The non-degenerate branch and leaf triangles of a sequence's frame at
 /// `t` (0 or 1), written as the runner writes it.
 fn written_surface(
@@ -300,13 +344,6 @@ fn written_surface(
     t: f32,
     eval: &mut dyn FnMut(f32, &mut Frame),
 ) -> (Triangles, Triangles) {
-    let triangles = |positions: &[Vec3], indices: &[u32]| -> Triangles {
-        indices
-            .chunks_exact(3)
-            .map(|c| [0, 1, 2].map(|k| positions[c[k] as usize]))
-            .filter(|[a, b, c]| (*b - *a).cross(*c - *a).length_squared() > 1e-14)
-            .collect()
-    };
     let mut surface = (Vec::new(), Vec::new());
     write_frames(
         topology,

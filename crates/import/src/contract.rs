@@ -839,7 +839,22 @@ fn robust_radius(d: &mut [f32]) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    use super::robust_radius;
+    use super::{proxy_budget, robust_radius};
+    use crate::ImportOptions;
+
+    /// Regression: a fixed 40,000-vertex proxy clustered the twigs of
+    /// 400,000-vertex barks into clumps (5 % of the bark 2–3 % of the
+    /// tree's height from any imported wood).
+    #[test]
+    fn the_proxy_budget_follows_the_mesh() {
+        let options = ImportOptions::default();
+        assert_eq!(proxy_budget(400_000, &options), 133_333);
+        assert_eq!(proxy_budget(60_000, &options), 40_000);
+        assert_eq!(proxy_budget(3_000_000, &options), 150_000);
+        let mut asked = ImportOptions::default();
+        asked.contraction_vertices = 200_000;
+        assert_eq!(proxy_budget(3_000_000, &asked), 200_000);
+    }
 
     /// Regression: a node owning a clump of merged twigs (a few vertices of
     /// its own bark near the axis, many a metre out) measured the clump's

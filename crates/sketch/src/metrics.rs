@@ -262,6 +262,15 @@ impl<'p> SketchMetrics<'p> {
         self.trace(lo, px)
     }
 
+    /// The outer boundary of every piece of a frame's foliage outline (NDC,
+    /// counter-clockwise): [`SketchMetrics::outline`] keeps only the
+    /// largest, the foliage fit needs all of them.
+    pub(crate) fn outlines(&mut self, frame: &Frame) -> Vec<Vec<Vec2>> {
+        let reference = self.plan.reference_crown(frame.t);
+        let (lo, px) = self.rasterise(frame, &reference);
+        self.trace_all(lo, px)
+    }
+
     /// Counts floating branches and leaves of one of the plan's frames
     /// (see the module docs).
     pub fn floating(&self, frame: &Frame) -> (usize, usize) {
@@ -458,10 +467,34 @@ impl<'p> SketchMetrics<'p> {
 
     /// The outer boundary of the mask's largest 4-connected region, in NDC.
     fn trace(&mut self, lo: Vec2, px: f32) -> Vec<Vec2> {
+        let sizes = self.label_regions();
+        let Some(best) = (1..sizes.len()).max_by_key(|&l| (sizes[l], std::cmp::Reverse(l))) else {
+            return Vec::new();
+        };
+        let loops = self.boundary_loops(|l| l == best as u32);
+        loops
+            .iter()
+            .max_by(|a, b| loop_area(a).total_cmp(&loop_area(b)))
+            .map_or_else(Vec::new, |outer| corners(outer, lo, px))
+    }
+
+    /// The outer boundary of every 4-connected region of the mask, in NDC
+    /// (counter-clockwise).
+    fn trace_all(&mut self, lo: Vec2, px: f32) -> Vec<Vec<Vec2>> {
+        self.label_regions();
+        self.boundary_loops(|_| true)
+            .iter()
+            .filter(|l| loop_area(l) > 0.0)
+            .map(|l| corners(l, lo, px))
+            .collect()
+    }
+
+    /// Labels the mask's 4-connected regions 1, 2, … in `label`; returns
+    /// each label's pixel count (index 0 unused).
+    fn label_regions(&mut self) -> Vec<usize> {
         let g = self.size;
-        // Label components.
         self.label.fill(0);
-        let mut best = (0usize, 0u32);
+        let mut sizes = vec![0usize];
         let mut next = 0u32;
         for start in 0..g * g {
             if !self.mask[start] || self.label[start] != 0 {
@@ -488,19 +521,22 @@ impl<'p> SketchMetrics<'p> {
                     }
                 }
             }
-            if count > best.0 {
-                best = (count, next);
-            }
+            sizes.push(count);
         }
-        if best.0 == 0 {
-            return Vec::new();
-        }
+        sizes
+    }
+
+    /// The boundary loops (lattice vertices, region on the left) of the
+    /// labelled regions `keep` accepts.
+    fn boundary_loops(&self, keep: impl Fn(u32) -> bool) -> Vec<Vec<(i64, i64)>> {
+        let g = self.size;
         let inside = |x: i64, y: i64| {
             x >= 0
                 && y >= 0
                 && (x as usize) < g
                 && (y as usize) < g
-                && self.label[y as usize * g + x as usize] == best.1
+                && self.label[y as usize * g + x as usize] != 0
+                && keep(self.label[y as usize * g + x as usize])
         };
         // Directed boundary edges with the region on the left; per lattice
         // vertex a bit set of outgoing directions (E, N, W, S).
@@ -553,29 +589,32 @@ impl<'p> SketchMetrics<'p> {
                 loops.push(lp);
             }
         }
-        let area = |l: &Vec<(i64, i64)>| {
-            let n = l.len();
-            (0..n)
-                .map(|i| {
-                    let (a, b) = (l[i], l[(i + 1) % n]);
-                    (a.0 * b.1 - b.0 * a.1) as f64
-                })
-                .sum::<f64>()
-        };
-        let Some(outer) = loops.iter().max_by(|a, b| area(a).total_cmp(&area(b))) else {
-            return Vec::new();
-        };
-        // Keep corners only.
-        let n = outer.len();
-        let mut poly = Vec::new();
-        for i in 0..n {
-            let (a, b, c) = (outer[(i + n - 1) % n], outer[i], outer[(i + 1) % n]);
-            if (b.0 - a.0) * (c.1 - b.1) - (b.1 - a.1) * (c.0 - b.0) != 0 {
-                poly.push(lo + Vec2::new(b.0 as f32, b.1 as f32) * px);
-            }
-        }
-        poly
+        loops
     }
+}
+
+/// Twice the signed area of a lattice loop.
+fn loop_area(l: &[(i64, i64)]) -> f64 {
+    let n = l.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (l[i], l[(i + 1) % n]);
+            (a.0 * b.1 - b.0 * a.1) as f64
+        })
+        .sum()
+}
+
+/// The corners of a lattice loop, in NDC (`lo` + lattice × `px`).
+fn corners(outer: &[(i64, i64)], lo: Vec2, px: f32) -> Vec<Vec2> {
+    let n = outer.len();
+    let mut poly = Vec::new();
+    for i in 0..n {
+        let (a, b, c) = (outer[(i + n - 1) % n], outer[i], outer[(i + 1) % n]);
+        if (b.0 - a.0) * (c.1 - b.1) - (b.1 - a.1) * (c.0 - b.0) != 0 {
+            poly.push(lo + Vec2::new(b.0 as f32, b.1 as f32) * px);
+        }
+    }
+    poly
 }
 
 /// 1D squared distance transform of a sampled function (Felzenszwalb &

@@ -51,6 +51,12 @@ pub struct SketchOptions {
     /// segment, as a fraction of the crown's screen diagonal (default
     /// 0.25): farther segments stay uncovered rather than tear a cage.
     pub adapt_reach: f32,
+    /// Foliage-fit passes (see the `foliage` module docs): after planning,
+    /// the t = 1 foliage outline is measured and the crown cage corrected
+    /// so that the outline, rather than the crown's convex silhouette,
+    /// lands on the sketch (default 2; 0: the paper's crown mapping alone;
+    /// at most 8; multiscale closed sketches only).
+    pub foliage_passes: u32,
     /// Pruning threshold on the area ratio r = area(cage ∩ sketch) /
     /// area(cage) (default 0.3, the paper's 30 %).
     pub prune_ratio: f32,
@@ -86,6 +92,7 @@ impl Default for SketchOptions {
             node_weight: 1.0,
             coverage_threshold: 0.02,
             adapt_reach: 0.25,
+            foliage_passes: 2,
             prune_ratio: 0.3,
             inside_ratio: 0.95,
             crown_samples: 128,
@@ -135,6 +142,12 @@ impl SketchOptions {
                     "must not exceed inside_ratio ({}), got {}",
                     self.inside_ratio, self.prune_ratio
                 ),
+            });
+        }
+        if self.foliage_passes > 8 {
+            return Err(SketchError::InvalidOption {
+                option: "foliage_passes",
+                reason: format!("must be at most 8, got {}", self.foliage_passes),
             });
         }
         if !(16..=4096).contains(&self.crown_samples) {

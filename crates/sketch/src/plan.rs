@@ -9,6 +9,7 @@ use treemorph_tree::{Frame, FrameTopology, NodeId, Tree};
 use crate::adapt;
 use crate::correspondence::{self, Correspondence};
 use crate::error::SketchError;
+use crate::foliage;
 use crate::laplacian::LeastSquares;
 use crate::mct::{self, Cage, CageKind, Mct};
 use crate::options::{Method, SketchOptions};
@@ -147,7 +148,7 @@ impl SketchPlan {
         let levels = chain_levels(tree, analysis, &mct.control, options.node_weight)?;
         let lobes = crate::lobes::LobeSource::new(analysis, &mct, &camera);
         let chains = analysis.chains();
-        Ok(SketchPlan {
+        let mut plan = SketchPlan {
             options: options.clone(),
             camera,
             topology: FrameTopology::of_tree(tree),
@@ -176,7 +177,11 @@ impl SketchPlan {
             leaf_wilts: wilting.leaves,
             chain_wilts: wilting.chains,
             lobes,
-        })
+        };
+        if options.method == Method::Multiscale && sketch.closed && options.foliage_passes > 0 {
+            foliage::fit(&mut plan, options.foliage_passes)?;
+        }
+        Ok(plan)
     }
 
     /// The union topology every frame shares (the input tree's).

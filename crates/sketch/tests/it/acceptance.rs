@@ -272,3 +272,25 @@ fn a_top_view_sketch() {
     assert_eq!((m.floating_branches, m.floating_leaves), (0, 0));
     assert!(m.iou >= 0.7, "IoU {}", m.iou);
 }
+
+/// The foliage fit keeps the crown displacement whose final foliage fits
+/// the sketch best, so it never fits worse than the paper's mapping alone —
+/// not even for a crescent, whose deep concavity its convex envelope
+/// matches poorly.
+#[test]
+fn the_foliage_fit_never_fits_worse() {
+    let f = fixture(Preset::Maple);
+    for sketch in ["heart", "crescent"] {
+        let file = example(sketch);
+        let iou = |passes: u32| {
+            let mut options = SketchOptions::default().with_fit(file.fit);
+            options.foliage_passes = passes;
+            let plan =
+                SketchPlan::new(&f.tree, &f.analysis, &file.view, &file.sketch, &options).unwrap();
+            let frame = Sketcher::new(&plan).frame(1.0);
+            SketchMetrics::new(&plan).shape(&frame).iou
+        };
+        let (paper, fitted) = (iou(0), iou(2));
+        assert!(fitted >= paper, "{sketch}: {fitted} < {paper}");
+    }
+}

@@ -262,6 +262,15 @@ fn options_are_checked() {
             ..
         }
     ));
+    let mut o = SketchOptions::default();
+    o.foliage_passes = 9;
+    assert!(matches!(
+        plan(&view(), &triangle(), &o).unwrap_err(),
+        SketchError::InvalidOption {
+            option: "foliage_passes",
+            ..
+        }
+    ));
 }
 
 #[test]

@@ -64,11 +64,12 @@
 //! single-cage baseline stays the paper's, and an open sketch promises to
 //! keep the crown outside the oversketched arc as it is.
 
+use faer::linalg::solvers::Solve;
+use faer::{Mat, Side};
 use glam::Vec2;
 
 use crate::correspondence;
 use crate::error::SketchError;
-use crate::laplacian::{COLS, LeastSquares, scratch_for};
 use crate::metrics::SketchMetrics;
 use crate::mvc;
 use crate::plan::SketchPlan;
@@ -100,15 +101,14 @@ pub(crate) fn fit(plan: &mut SketchPlan, passes: u32) -> Result<(), SketchError>
     let mut best: Option<(f32, Vec<Vec2>)> = None;
     for pass in 0..=passes {
         let frame = Sketcher::new(plan).frame(1.0);
-        let mut metrics = SketchMetrics::new(plan);
-        let iou = metrics.shape(&frame).iou;
+        let (iou, outlines) = SketchMetrics::new(plan).iou_and_outlines(&frame);
         if best.as_ref().is_none_or(|(b, _)| iou > *b) {
             best = Some((iou, plan.crown_delta.clone()));
         }
         if pass == passes {
             break;
         }
-        let pieces = major_pieces(metrics.outlines(&frame), plan.crown_size);
+        let pieces = major_pieces(outlines, plan.crown_size);
         let Some(delta) = correction_for(plan, &pieces)? else {
             break;
         };
@@ -212,44 +212,43 @@ fn nearest(pieces: &[Vec<Vec2>], cums: &[Vec<f32>], p: Vec2) -> (Vec2, f32) {
 
 /// The smooth correction of the cage vertices' displacements that moves
 /// the targets' points where they should go (step 4 of the module docs).
+/// Mean value coordinates are dense, so the normal equations are too (a
+/// few hundred unknowns): dense Cholesky.
 fn correction(cage: &[Vec2], data: &[Target]) -> Result<Vec<Vec2>, SketchError> {
     let n = cage.len();
-    let mut entries: Vec<(usize, usize, f64)> = Vec::new();
-    let mut b: Vec<[f64; COLS]> = Vec::new();
+    let rows = data.len() + 2 * n;
+    let mut a = Mat::<f64>::zeros(rows, n);
+    let mut b = Mat::<f64>::zeros(rows, 2);
     let mut lambda = vec![0.0f32; n];
-    for &(f, s, w) in data {
+    for (row, &(f, s, w)) in data.iter().enumerate() {
         mvc::coordinates(cage, f, &mut lambda);
-        let (row, w) = (b.len(), f64::from(w));
-        for (j, &l) in lambda.iter().enumerate().filter(|(_, l)| **l != 0.0) {
-            entries.push((row, j, w * f64::from(l)));
+        let w = f64::from(w);
+        for (j, &l) in lambda.iter().enumerate() {
+            a[(row, j)] = w * f64::from(l);
         }
-        let d = s - f;
-        b.push([w * f64::from(d.x), w * f64::from(d.y)]);
+        b[(row, 0)] = w * f64::from(s.x - f.x);
+        b[(row, 1)] = w * f64::from(s.y - f.y);
     }
     // Polygon Laplacian rows, 1/|edge| weights floored at 1 % of the mean
-    // edge (near-coincident corners must not dominate).
+    // edge (near-coincident corners must not dominate), then the prior.
     let floor = 0.01 * f64::from(polygon::perimeter(cage)) / n as f64;
     let weight =
-        |a: usize, c: usize| 1.0 / f64::from(cage[a].distance(cage[c])).max(floor).max(1e-12);
+        |i: usize, j: usize| 1.0 / f64::from(cage[i].distance(cage[j])).max(floor).max(1e-12);
     for i in 0..n {
         let (p, q) = ((i + n - 1) % n, (i + 1) % n);
         let (wp, wq) = (weight(i, p), weight(i, q));
-        let row = b.len();
-        entries.extend([
-            (row, i, 1.0),
-            (row, p, -wp / (wp + wq)),
-            (row, q, -wq / (wp + wq)),
-        ]);
-        b.push([0.0; COLS]);
+        let row = data.len() + i;
+        a[(row, i)] += 1.0;
+        a[(row, p)] -= wp / (wp + wq);
+        a[(row, q)] -= wq / (wp + wq);
+        a[(data.len() + n + i, i)] = PRIOR;
     }
-    for i in 0..n {
-        entries.push((b.len(), i, PRIOR));
-        b.push([0.0; COLS]);
-    }
-    let ls = LeastSquares::new(n, b.len(), &entries)?;
-    let mut x = faer::Mat::zeros(0, 0);
-    let mut mem = scratch_for([&ls]);
-    ls.solve(&b, &mut x, &mut mem);
+    let ata = a.transpose() * &a;
+    let atb = a.transpose() * &b;
+    let x = ata
+        .llt(Side::Lower)
+        .map_err(|e| SketchError::Internal(format!("foliage fit: {e:?}")))?
+        .solve(&atb);
     Ok((0..n)
         .map(|i| Vec2::new(x[(i, 0)] as f32, x[(i, 1)] as f32))
         .collect())

@@ -23,7 +23,8 @@
 //! ```
 //!
 //! The crate is synchronous and does no I/O. [`SketchPlan::new`] does the
-//! per-sketch work once (≈ 20–35 ms for 5,000 branches in release); a
+//! per-sketch work once (≈ 50–90 ms for 5,000 branches in release, 20–35
+//! ms of it without the foliage fit's three measured frames); a
 //! [`Sketcher`] then makes any frame in ≈ 1 ms, reusing its buffers.
 //!
 //! # Glossary

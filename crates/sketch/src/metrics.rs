@@ -221,23 +221,7 @@ impl<'p> SketchMetrics<'p> {
         let t = crate::time::clamp_t(frame.t);
         let reference = self.plan.reference_crown(t);
         let (lo, px) = self.rasterise(frame, &reference);
-        let inter = self
-            .mask
-            .iter()
-            .zip(&self.reference)
-            .filter(|&(&a, &b)| a && b)
-            .count();
-        let union = self
-            .mask
-            .iter()
-            .zip(&self.reference)
-            .filter(|&(&a, &b)| a || b)
-            .count();
-        let iou = if union > 0 {
-            inter as f32 / union as f32
-        } else {
-            1.0
-        };
+        let (inter, iou) = self.overlap();
         let reference_px = self.reference.iter().filter(|&&r| r).count().max(1) as f32;
         let foliage_px = self.mask.iter().filter(|&&m| m).count() as f32;
         let coverage = inter as f32 / reference_px;
@@ -262,13 +246,32 @@ impl<'p> SketchMetrics<'p> {
         self.trace(lo, px)
     }
 
-    /// The outer boundary of every piece of a frame's foliage outline (NDC,
+    /// The IoU of a frame's foliage outline with the reference crown at
+    /// `frame.t`, and the outer boundary of every piece of the outline (NDC,
     /// counter-clockwise): [`SketchMetrics::outline`] keeps only the
-    /// largest, the foliage fit needs all of them.
-    pub(crate) fn outlines(&mut self, frame: &Frame) -> Vec<Vec<Vec2>> {
+    /// largest, the foliage fit needs all of them. One rasterisation, no
+    /// Fréchet distance.
+    pub(crate) fn iou_and_outlines(&mut self, frame: &Frame) -> (f32, Vec<Vec<Vec2>>) {
         let reference = self.plan.reference_crown(frame.t);
         let (lo, px) = self.rasterise(frame, &reference);
-        self.trace_all(lo, px)
+        let (_, iou) = self.overlap();
+        (iou, self.trace_all(lo, px))
+    }
+
+    /// Pixels in both the outline and the reference, and their IoU (1 when
+    /// both are empty).
+    fn overlap(&self) -> (usize, f32) {
+        let (mut inter, mut union) = (0usize, 0usize);
+        for (&a, &b) in self.mask.iter().zip(&self.reference) {
+            inter += usize::from(a && b);
+            union += usize::from(a || b);
+        }
+        let iou = if union > 0 {
+            inter as f32 / union as f32
+        } else {
+            1.0
+        };
+        (inter, iou)
     }
 
     /// Counts floating branches and leaves of one of the plan's frames

@@ -112,10 +112,11 @@ proptest! {
 /// from other tools). Segments between joints now share their piece's
 /// length as at rest: the branch bends at its nodes. The bounds are this
 /// change's figures with a margin; before it the worst segments of these
-/// sketches stretched by 550 %, 107 % and 147 %.
+/// sketches stretched by 557 %, 141 % and 151 % (258 %, 109 % and 78 %
+/// with it).
 #[test]
 fn segments_between_joints_stretch_alike() {
-    for (i, name, bound) in [(0, "heart", 3.0), (3, "diamond", 0.9), (1, "crescent", 1.0)] {
+    for (i, name, bound) in [(0, "heart", 3.0), (3, "diamond", 1.2), (1, "crescent", 1.0)] {
         let f = small(i);
         let file = crate::example(name);
         let options = SketchOptions::default().with_fit(file.fit);

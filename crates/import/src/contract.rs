@@ -851,8 +851,10 @@ mod tests {
         assert_eq!(proxy_budget(400_000, &options), 133_333);
         assert_eq!(proxy_budget(60_000, &options), 40_000);
         assert_eq!(proxy_budget(3_000_000, &options), 150_000);
-        let mut asked = ImportOptions::default();
-        asked.contraction_vertices = 200_000;
+        let asked = ImportOptions {
+            contraction_vertices: 200_000,
+            ..ImportOptions::default()
+        };
         assert_eq!(proxy_budget(3_000_000, &asked), 200_000);
     }
 

@@ -43,9 +43,14 @@ fn spread(x: &mut [f32]) -> f32 {
     if x.len() < 2 {
         return 0.0;
     }
-    x.sort_unstable_by(f32::total_cmp);
-    let at = |q: f32| x[((x.len() - 1) as f32 * q).round() as usize];
-    at(0.95) - at(0.05)
+    let n = x.len() - 1;
+    let (lo, hi) = (
+        (n as f32 * 0.05).round() as usize,
+        (n as f32 * 0.95).round() as usize,
+    );
+    let high = *x.select_nth_unstable_by(hi, f32::total_cmp).1;
+    let low = *x[..=hi].select_nth_unstable_by(lo, f32::total_cmp).1;
+    high - low
 }
 
 /// Per-plan tables of the depth scaling.

@@ -41,7 +41,7 @@ pub(crate) struct Rigid {
     /// other chains (their subtrees hang there) and chain tips (they sit
     /// on their cage targets).
     anchor: Vec<bool>,
-    /// The solved positions, before the redistribution.
+    /// Scratch: one piece's solved positions.
     solved: Vec<Vec3>,
     /// Scratch: one piece's rest and solved segment lengths.
     rest_lengths: Vec<f32>,
@@ -65,8 +65,6 @@ impl Rigid {
     /// Moves the nodes between anchors along the solved polyline to their
     /// rest share of its length.
     pub(crate) fn apply(&mut self, plan: &SketchPlan, positions: &mut [Vec3]) {
-        self.solved.clear();
-        self.solved.extend_from_slice(positions);
         for &(a, b) in &plan.chain_ranges {
             let nodes = &plan.chain_nodes[a as usize..b as usize];
             let mut start = 0;
@@ -85,10 +83,16 @@ impl Rigid {
         if piece.len() < 3 {
             return;
         }
+        // The piece's solved positions, before its inner nodes move (no
+        // other piece reads them: inner nodes belong to one piece).
+        self.solved.clear();
+        self.solved
+            .extend(piece.iter().map(|&n| positions[n as usize]));
         self.rest_lengths.clear();
         self.rest_lengths.extend(segment_lengths(piece, rest));
         self.lengths.clear();
-        self.lengths.extend(segment_lengths(piece, &self.solved));
+        self.lengths
+            .extend(self.solved.windows(2).map(|w| w[0].distance(w[1])));
         let rest_total: f32 = self.rest_lengths.iter().sum();
         let total: f32 = self.lengths.iter().sum();
         if !(rest_total > 0.0 && total > 0.0) {
@@ -102,10 +106,7 @@ impl Rigid {
                 start += self.lengths[seg];
                 seg += 1;
             }
-            let (p, q) = (
-                self.solved[piece[seg] as usize],
-                self.solved[piece[seg + 1] as usize],
-            );
+            let (p, q) = (self.solved[seg], self.solved[seg + 1]);
             let s = if self.lengths[seg] > 0.0 {
                 ((want - start) / self.lengths[seg]).clamp(0.0, 1.0)
             } else {

@@ -11,13 +11,16 @@
 //!
 //! # How natural a sketch stays, in `metrics.json`
 //! Measured on every frame written (`treemorph_sketch::SketchMetrics`):
-//! `stretch` per frame and `max_stretch` over the job, the largest
-//! relative change of a branch segment's length from its rest length
-//! (wilting chains shrink on purpose and are left out), and the crown's
+//! `growth` per frame and `max_growth` over the job, the largest growth
+//! or shrinking the sketch asks of a chain (`|g − 1|`, `g` its chord now
+//! over at rest); `stretch` per frame and `max_stretch` over the job, the
+//! largest relative change of a branch segment's length beyond its
+//! chain's growth (wilting chains shrink on purpose and are left out in
+//! both); and the crown's
 //! depth over its width seen from the sketch's camera before and after
 //! the job, `crown_depth_width_before` and `crown_depth_width_after` (a
 //! crown flattened into a slab facing the camera shows as a falling
-//! ratio). The summary carries `max_stretch`.
+//! ratio). The summary carries `max_stretch` and `max_growth`.
 //!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
@@ -213,6 +216,7 @@ fn run_sketch(
 struct SketchSeries {
     frechet: Vec<f32>,
     stretch: Vec<f32>,
+    growth: Vec<f32>,
     first_depth_width: Option<f32>,
     written: WrittenSeries,
     constructed_floating_branches: Vec<usize>,
@@ -225,6 +229,7 @@ impl SketchSeries {
         SketchSeries {
             frechet: Vec::with_capacity(n),
             stretch: Vec::with_capacity(n),
+            growth: Vec::with_capacity(n),
             first_depth_width: None,
             written: WrittenSeries::with_capacity(n),
             constructed_floating_branches: Vec::with_capacity(n),
@@ -236,6 +241,7 @@ impl SketchSeries {
     fn push(&mut self, m: treemorph_sketch::FrameMetrics, written: &Report) {
         self.frechet.push(m.frechet_normalised);
         self.stretch.push(m.max_stretch);
+        self.growth.push(m.max_growth);
         self.first_depth_width.get_or_insert(m.crown_depth_width);
         self.written.push(written);
         self.constructed_floating_branches.push(m.floating_branches);
@@ -248,11 +254,13 @@ impl SketchSeries {
     fn into_json(self, frames: u32) -> Option<(Value, Value)> {
         let last = self.last?;
         let max_stretch = self.stretch.iter().copied().fold(0.0f32, f32::max);
+        let max_growth = self.growth.iter().copied().fold(0.0f32, f32::max);
         let before = self.first_depth_width.unwrap_or(last.crown_depth_width);
         let mut summary = json!({
             "final_iou": last.iou,
             "final_frechet": last.frechet_normalised,
             "max_stretch": max_stretch,
+            "max_growth": max_growth,
         });
         let mut metrics = json!({
             "kind": "sketch",
@@ -262,6 +270,8 @@ impl SketchSeries {
             "final_frechet": last.frechet_normalised,
             "stretch": self.stretch,
             "max_stretch": max_stretch,
+            "growth": self.growth,
+            "max_growth": max_growth,
             "crown_depth_width_before": before,
             "crown_depth_width_after": last.crown_depth_width,
             "constructed_floating_branches": self.constructed_floating_branches,

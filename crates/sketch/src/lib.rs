@@ -171,10 +171,11 @@
 //! its parent by MVC plus `t ×` its self-adaptive correction; chain targets
 //! follow their control cages; chains are solved order by order, each
 //! junction where the parent chain put it (*forward propagation*: chains
-//! stay connected by construction). Then the nodes between a chain's
-//! joints slide along its solved polyline to their rest share of its
-//! length, so segments stretch alike and branches bend at their nodes
-//! (`rigid` module; a node's depth moves within its chain's). Nodes of
+//! stay connected by construction). Then every chain is re-solved,
+//! parents first, to reach its solved tip from its junction with its rest
+//! segment lengths times its growth (its chord now over at rest), so
+//! branches bend at their nodes rather than stretch (`rigid` module; a
+//! node's depth moves within its chain's). Nodes of
 //! wilting subtrees then shrink toward their subtree's junction by the
 //! factor `1 − t`, radii too. Leaves ride on the branch they grow
 //! on: anchor = the deformed branch point at the leaf's parameter + its

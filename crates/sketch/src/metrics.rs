@@ -26,11 +26,15 @@
 //!   normalised, it is divided by the crown's screen diagonal.
 //!
 //! # Natural deformation
-//! - **stretch**: `max |len / rest − 1|` over the branch segments that do
-//!   not wilt (a wilting subtree shrinks on purpose, so it is exempt and
-//!   counted apart by the plan). Bending rotates segments at their joints
-//!   and leaves this near 0; a cage that squeezes or pulls a crown shows
-//!   here.
+//! - **growth**: per chain, `g` = its chord (junction to tip) now over at
+//!   rest, each at least half the chain's rest length: the growth or shrinking the sketch asks of the chain (a limb
+//!   whose tip must reach 1.5 × as far). `max |g − 1|` over chains that
+//!   do not wilt (a wilting subtree shrinks on purpose, so it is exempt
+//!   and counted apart by the plan).
+//! - **stretch**: `max |len / (g × rest) − 1|` over those chains' segments:
+//!   how far a segment grew or shrank beyond its chain's growth. Bending
+//!   rotates segments at their joints and leaves this near 0; a solve that
+//!   pulls one segment and squeezes its neighbour shows here.
 //! - **crown depth/width**: the visible leaf anchors' 5–95th-percentile
 //!   extent along the view direction over that along the camera's right
 //!   axis. Compared before and after a job it shows a crown flattened into
@@ -54,6 +58,7 @@ use treemorph_tree::geom::closest_on_segment;
 use crate::frechet::discrete_frechet_with;
 use crate::plan::SketchPlan;
 use crate::polygon;
+use crate::rigid::growth;
 
 /// The 5th-to-95th-percentile spread of `v` (reordered).
 fn spread(v: &mut [f32]) -> f32 {
@@ -87,10 +92,13 @@ pub struct FrameMetrics {
     pub floating_branches: usize,
     /// Leaves off their branch (must be 0).
     pub floating_leaves: usize,
-    /// Largest relative change of a branch segment's length from its rest
-    /// length, `max |len / rest − 1|`, over segments that do not wilt
-    /// (see [`SketchMetrics::stretch`]).
+    /// Largest relative change of a branch segment's length beyond its
+    /// chain's growth, over chains that do not wilt (see
+    /// [`SketchMetrics::stretch`]).
     pub max_stretch: f32,
+    /// Largest growth or shrinking of a chain the sketch asks for,
+    /// `max |g − 1|` (see [`SketchMetrics::growth`]).
+    pub max_growth: f32,
     /// The crown's depth over its width seen from the view (see
     /// [`SketchMetrics::crown_depth_width`]).
     pub crown_depth_width: f32,
@@ -158,37 +166,71 @@ impl<'p> SketchMetrics<'p> {
             floating_branches,
             floating_leaves,
             max_stretch: self.stretch(frame),
+            max_growth: self.growth(frame),
             crown_depth_width: self.crown_depth_width(frame),
         }
     }
 
-    /// `max |len / rest − 1|` over the frame's branch segments (node to
-    /// parent) whose nodes do not wilt: wilting subtrees shrink to nothing
-    /// on purpose ([`SketchPlan::wilting_nodes`] says which). Segments
-    /// shorter than 10⁻⁶ × the tree height at rest are skipped. 0 for a
-    /// frame of another topology.
+    /// `max |len / (g × rest) − 1|` over the frame's branch segments, `g`
+    /// the growth of the segment's chain ([`SketchMetrics::growth`]): how
+    /// far a segment stretched beyond the growth the sketch asks of its
+    /// chain. Chains that wilt are skipped: wilting subtrees shrink to
+    /// nothing on purpose ([`SketchPlan::wilting_nodes`] says which).
+    /// Segments shorter than 10⁻⁶ × the tree height at rest are skipped.
+    /// 0 for a frame of another topology.
     pub fn stretch(&self, frame: &Frame) -> f32 {
+        self.chain_lengths(frame)
+            .map(|(g, segments)| {
+                segments
+                    .map(|(rest, len)| (len / (g * rest) - 1.0).abs())
+                    .fold(0.0f32, f32::max)
+            })
+            .fold(0.0, f32::max)
+    }
+
+    /// `max |g − 1|` over the chains that do not wilt, `g` a chain's
+    /// growth: its chord (junction to tip) in the frame over its chord at
+    /// rest, each at least half the chain's rest length, within [1/8, 8]
+    /// (a hooked twig uncurls before it grows). A sketch that reaches farther than the crown grows its
+    /// limbs; one that pulls it in shrinks them. 0 for a frame of another
+    /// topology.
+    pub fn growth(&self, frame: &Frame) -> f32 {
+        self.chain_lengths(frame)
+            .map(|(g, _)| (g - 1.0).abs())
+            .fold(0.0, f32::max)
+    }
+
+    /// Per chain that does not wilt: its growth and its segments' rest and
+    /// frame lengths (segments of no rest length left out). Nothing for a
+    /// frame of another topology.
+    fn chain_lengths<'a>(
+        &'a self,
+        frame: &'a Frame,
+    ) -> impl Iterator<Item = (f32, impl Iterator<Item = (f32, f32)> + 'a)> + 'a {
         let plan = self.plan;
         let rest = &plan.rest.positions;
-        if frame.positions.len() != rest.len() {
-            return 0.0;
-        }
+        let at = &frame.positions;
+        let same = at.len() == rest.len();
         let tiny = 1e-6 * plan.height;
-        let mut worst = 0.0f32;
-        for (i, parent) in plan.topology.parents.iter().enumerate() {
-            let Some(p) = parent.map(|p| p as usize) else {
-                continue;
-            };
-            if plan.node_wilts[i] {
-                continue;
-            }
-            let r = rest[i].distance(rest[p]);
-            if r > tiny {
-                let l = frame.positions[i].distance(frame.positions[p]);
-                worst = worst.max((l / r - 1.0).abs());
-            }
-        }
-        worst
+        plan.chain_ranges
+            .iter()
+            .zip(&plan.chain_wilts)
+            .filter(move |&(&(a, b), &wilts)| same && !wilts && b - a >= 2)
+            .map(move |(&(a, b), _)| {
+                let nodes = &plan.chain_nodes[a as usize..b as usize];
+                let (j, tip) = (nodes[0] as usize, nodes[nodes.len() - 1] as usize);
+                let length: f32 = nodes
+                    .windows(2)
+                    .map(|w| rest[w[0] as usize].distance(rest[w[1] as usize]))
+                    .sum();
+                let g = growth(rest[j].distance(rest[tip]), length, at[j].distance(at[tip]));
+                let segments = nodes.windows(2).filter_map(move |w| {
+                    let (p, q) = (w[0] as usize, w[1] as usize);
+                    let r = rest[p].distance(rest[q]);
+                    (r > tiny).then(|| (r, at[p].distance(at[q])))
+                });
+                (g, segments)
+            })
     }
 
     /// The crown's depth over its width seen from the plan's view: the

@@ -54,7 +54,7 @@ pub struct SketchOptions {
     /// Foliage-fit passes (see the `foliage` module docs): after planning,
     /// the t = 1 foliage outline is measured and the crown cage corrected
     /// so that the outline, rather than the crown's convex silhouette,
-    /// lands on the sketch (default 2; 0: the paper's crown mapping alone;
+    /// lands on the sketch (default 3; 0: the paper's crown mapping alone;
     /// at most 8; multiscale closed sketches only).
     pub foliage_passes: u32,
     /// Pruning threshold on the area ratio r = area(cage ∩ sketch) /
@@ -92,7 +92,7 @@ impl Default for SketchOptions {
             node_weight: 1.0,
             coverage_threshold: 0.02,
             adapt_reach: 0.25,
-            foliage_passes: 2,
+            foliage_passes: 3,
             prune_ratio: 0.3,
             inside_ratio: 0.95,
             crown_samples: 128,

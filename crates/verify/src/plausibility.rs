@@ -869,25 +869,16 @@ impl Plausibility {
                 }
             }
         }
-        let verts = &self.piece_verts[self.piece_vert_starts[piece as usize] as usize
-            ..self.piece_vert_starts[piece as usize + 1] as usize];
-        let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
-        for &v in verts {
+        let verts = self.piece_vert_starts[piece as usize] as usize
+            ..self.piece_vert_starts[piece as usize + 1] as usize;
+        for k in verts {
+            let v = self.piece_verts[k];
             if !self.vertex_visible[v as usize] {
                 continue;
             }
             let p = positions[v as usize];
-            let mut hit = u32::MAX;
-            let near = self.grid.any_near(p - reach, p + reach, |s| {
-                let near = tri_piece[s as usize] != piece
-                    && box_gap_sq((p, p), boxes[s as usize]) <= reach2
-                    && point_triangle_sq(p, tris[s as usize]) <= reach2;
-                if near {
-                    hit = s;
-                }
-                near
-            });
-            if near {
+            let hit = self.other_near(piece, (p, p), reach, |t| point_triangle_sq(p, t));
+            if let Some(hit) = hit {
                 self.partner[piece as usize] = Partner::Vertex(v, self.tri_orig[hit as usize]);
                 return true;
             }
@@ -900,24 +891,15 @@ impl Plausibility {
     /// bounds, by exact triangle–triangle distance, until one is close
     /// enough. Keeps the pair as the piece's proof when `remember`.
     fn piece_near_exact(&mut self, piece: u32, reach: f32, remember: bool) -> bool {
-        let reach2 = reach * reach;
-        let list = &self.piece_tris[self.piece_starts[piece as usize] as usize
-            ..self.piece_starts[piece as usize + 1] as usize];
-        let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
-        for &t in list {
-            let (lo, hi) = boxes[t as usize];
-            let tri = tris[t as usize];
-            let mut hit = u32::MAX;
-            let near = self.grid.any_near(lo - reach, hi + reach, |s| {
-                let near = tri_piece[s as usize] != piece
-                    && box_gap_sq((lo, hi), boxes[s as usize]) <= reach2
-                    && triangle_triangle_sq(tri, tris[s as usize]) <= reach2;
-                if near {
-                    hit = s;
-                }
-                near
+        let list = self.piece_starts[piece as usize] as usize
+            ..self.piece_starts[piece as usize + 1] as usize;
+        for k in list {
+            let t = self.piece_tris[k];
+            let tri = self.tris[t as usize];
+            let hit = self.other_near(piece, self.boxes[t as usize], reach, |s| {
+                triangle_triangle_sq(tri, s)
             });
-            if near {
+            if let Some(hit) = hit {
                 if remember {
                     self.partner[piece as usize] =
                         Partner::Triangles(self.tri_orig[t as usize], self.tri_orig[hit as usize]);
@@ -926,5 +908,30 @@ impl Plausibility {
             }
         }
         false
+    }
+
+    /// The first triangle of a piece other than `piece` within `reach` of
+    /// the box `bounds` and, by the squared distance `dist` to it, of the
+    /// geometry the box holds.
+    fn other_near(
+        &mut self,
+        piece: u32,
+        bounds: (Vec3, Vec3),
+        reach: f32,
+        dist: impl Fn([Vec3; 3]) -> f32,
+    ) -> Option<u32> {
+        let reach2 = reach * reach;
+        let (tris, boxes, tri_piece) = (&self.tris, &self.boxes, &self.tri_piece);
+        let mut hit = None;
+        self.grid.any_near(bounds.0 - reach, bounds.1 + reach, |s| {
+            let near = tri_piece[s as usize] != piece
+                && box_gap_sq(bounds, boxes[s as usize]) <= reach2
+                && dist(tris[s as usize]) <= reach2;
+            if near {
+                hit = Some(s);
+            }
+            near
+        });
+        hit
     }
 }

@@ -51,7 +51,7 @@ use treemorph_morph::{MorphOptions, MorphPlan, Morpher};
 use treemorph_sketch::{Sketch, SketchMetrics, SketchOptions, SketchPlan, Sketcher, View};
 use treemorph_tree::{Frame, FrameTopology};
 use treemorph_verify::geometry::point_triangle_sq;
-use treemorph_verify::{Plausibility, PlausibilityOptions, read_glb};
+use treemorph_verify::{Plausibility, PlausibilityOptions, Report, read_glb};
 
 /// The crown shapes every tree is sketched into.
 const SHAPES: [&str; 6] = ["cone", "column", "umbrella", "ellipse", "lean", "heart"];
@@ -88,6 +88,23 @@ impl Failures {
         } else {
             self.failed.push((key, what()));
         }
+    }
+
+    /// Records check `<label> floating`: no floating leaf or piece in any
+    /// of the sequence's `reports`. Returns the most of each in a frame.
+    fn check_floating(&mut self, label: &str, reports: &[Report]) -> (u32, u32) {
+        let (fl, fb, gap) = max_floating(reports);
+        self.check(format!("{label} floating"), fl == 0 && fb == 0, || {
+            let per: Vec<String> = reports
+                .iter()
+                .map(|r| format!("{}/{}", r.floating_leaves, r.floating_branches))
+                .collect();
+            format!(
+                "{label}: floating leaves/pieces per frame {} (worst gap {gap:.3} m)",
+                per.join(" ")
+            )
+        });
+        (fl, fb)
     }
 
     /// Prints the known shortfalls and the fixed ones; panics listing the
@@ -287,17 +304,7 @@ fn morph_cell(source: &Loaded, target: Option<&Loaded>, failures: &mut Failures)
     };
     let mut morpher = Morpher::new(&plan);
     let reports = check_frames(plan.topology(), frames(), |t, f| morpher.morph(t, f));
-    let (fl, fb, gap) = max_floating(&reports);
-    failures.check(format!("{label} floating"), fl == 0 && fb == 0, || {
-        let per: Vec<String> = reports
-            .iter()
-            .map(|r| format!("{}/{}", r.floating_leaves, r.floating_branches))
-            .collect();
-        format!(
-            "{label}: floating leaves/pieces per frame {} (worst gap {gap:.3} m)",
-            per.join(" ")
-        )
-    });
+    let (fl, fb) = failures.check_floating(&label, &reports);
     let start = endpoint_p95(plan.topology(), &mut morpher, 0.0, source);
     let end = endpoint_p95(plan.topology(), &mut morpher, 1.0, target);
     for (which, p) in [("start", start), ("end", end)] {
@@ -444,17 +451,7 @@ fn sketch_cell(t: &Loaded, shape: &str, failures: &mut Failures) -> (String, Opt
     let reports = check_frames(plan.topology(), frames(), |time, f| {
         sketcher.deform(time, f)
     });
-    let (fl, fb, gap) = max_floating(&reports);
-    failures.check(format!("{label} floating"), fl == 0 && fb == 0, || {
-        let per: Vec<String> = reports
-            .iter()
-            .map(|r| format!("{}/{}", r.floating_leaves, r.floating_branches))
-            .collect();
-        format!(
-            "{label}: floating leaves/pieces per frame {} (worst gap {gap:.3} m)",
-            per.join(" ")
-        )
-    });
+    let (fl, fb) = failures.check_floating(&label, &reports);
     let mut metrics = SketchMetrics::new(&plan);
     // The rest frame measured against the sketched crown: the fit before.
     let mut before = sketcher.frame(0.0);

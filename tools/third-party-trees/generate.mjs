@@ -42,13 +42,16 @@ if (!out) {
 }
 fs.mkdirSync(out, { recursive: true });
 
-// (file name, ez-tree preset, seed, billboard mode)
+// (file name, ez-tree preset, seed, billboard mode, branch overrides).
+// The stock presets import as 400–1,900 branches; the overrides add
+// children (and for the aspen and pine a level of twigs) so that every
+// tree imports with 2,000–15,000 branches, as the acceptance asks.
 const TREES = [
-  ['ash-medium', 'Ash Medium', 11, 'double'],
-  ['oak-small', 'Oak Small', 7, 'single'],
-  ['aspen-medium', 'Aspen Medium', 3, 'double'],
-  ['pine-small', 'Pine Small', 5, 'single'],
-  ['bush-1', 'Bush 1', 2, 'double'],
+  ['ash-large', 'Ash Large', 11, 'double', { children: { 0: 12, 1: 5, 2: 4 } }],
+  ['oak-large', 'Oak Large', 7, 'single', { children: { 0: 10, 1: 6, 2: 4 } }],
+  ['aspen-large', 'Aspen Large', 3, 'double', { levels: 3, children: { 2: 3 } }],
+  ['pine-large', 'Pine Large', 5, 'single', { levels: 2, children: { 1: 2 } }],
+  ['bush-1', 'Bush 1', 2, 'double', { children: { 1: 4, 2: 4 } }],
 ];
 
 function pad4(n) {
@@ -159,9 +162,11 @@ function glb(tree) {
   return Buffer.concat([header, jsonHeader, jsonPadded, binHeader, bin]);
 }
 
-for (const [name, preset, seed, billboard] of TREES) {
+for (const [name, preset, seed, billboard, branch] of TREES) {
   const tree = new Tree();
   tree.loadPreset(preset);
+  if (branch.levels !== undefined) tree.options.branch.levels = branch.levels;
+  Object.assign(tree.options.branch.children, branch.children);
   tree.options.seed = seed;
   tree.options.leaves.billboard = billboard;
   tree.generate();
@@ -171,6 +176,7 @@ for (const [name, preset, seed, billboard] of TREES) {
   const facts = {
     preset,
     seed,
+    branch,
     billboard,
     branch_vertices: tree.branches.verts.length / 3,
     leaf_quads: quads,

@@ -6,7 +6,10 @@
 //!
 //! 1. **Root.** Among the pieces' ends (points with at most one neighbour)
 //!    that lie within 2 % of the tree's height above its lowest point, the
-//!    thickest is the root: the lowest, thickest point.
+//!    thickest is the root: the lowest, thickest point. Drooping twigs can
+//!    hang lower than the trunk's base (an ez-tree bush's do), so when an
+//!    end in the lowest quarter of the tree is more than 4 × as thick, it
+//!    is the root instead: a trunk's base, not a twig's tip.
 //! 2. **Candidates.** For each end of every other piece, the nearest points
 //!    on up to four other pieces (a kd-tree over points sampled along every
 //!    segment, then the exact point–segment distance).
@@ -36,6 +39,18 @@ use treemorph_tree::Node;
 use treemorph_tree::geom::{self, NONE};
 
 use crate::error::ImportError;
+
+/// Ends this high above the lowest point (fraction of the height) are on
+/// the ground.
+const GROUND: f32 = 0.02;
+
+/// Ends this high above the lowest point (fraction of the height) may be a
+/// trunk's base above drooping twigs.
+const LOW: f32 = 0.25;
+
+/// An end on the ground thinner than this fraction of the thickest low end
+/// is a twig's tip.
+const THIN: f32 = 0.25;
 
 /// A piece of skeleton: points with radii and the edges of a tree over
 /// them.
@@ -189,19 +204,33 @@ impl Soup {
         self.degree[v] <= 1
     }
 
-    /// Step 1: the thickest end near the ground, else the lowest point.
+    /// Step 1: the thickest end near the ground — unless a thicker end lies
+    /// in the lowest quarter of the tree (see the module docs) — else the
+    /// lowest point.
     fn root(&self) -> Result<usize, ImportError> {
+        let height = self.ymax - self.ymin;
+        let ground = self.thickest_end_below(self.ymin + GROUND * height);
+        let low = self.thickest_end_below(self.ymin + LOW * height);
+        let root = match (ground, low) {
+            (Some(g), Some(l)) if self.rad[g] < THIN * self.rad[l] => Some(l),
+            (g, l) => g.or(l),
+        };
+        root.or_else(|| {
+            (0..self.own_points()).min_by(|&a, &b| self.pos[a].y.total_cmp(&self.pos[b].y))
+        })
+        .ok_or_else(|| ImportError::Internal("no root candidate".into()))
+    }
+
+    /// The thickest end no higher than `y` (the lower of equals).
+    fn thickest_end_below(&self, y: f32) -> Option<usize> {
         let (pos, rad) = (&self.pos, &self.rad);
-        let band = self.ymin + 0.02 * (self.ymax - self.ymin);
         (0..self.own_points())
-            .filter(|&v| self.is_end(v) && pos[v].y <= band)
+            .filter(|&v| self.is_end(v) && pos[v].y <= y)
             .max_by(|&a, &b| {
                 rad[a]
                     .total_cmp(&rad[b])
                     .then(pos[b].y.total_cmp(&pos[a].y))
             })
-            .or_else(|| (0..self.own_points()).min_by(|&a, &b| pos[a].y.total_cmp(&pos[b].y)))
-            .ok_or_else(|| ImportError::Internal("no root candidate".into()))
     }
 
     /// A candidate joining `end` to global segment `seg`.

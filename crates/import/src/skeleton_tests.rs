@@ -137,3 +137,29 @@ fn closest_points_on_segments() {
     let (s, _) = closest_on_segment(Vec3::ONE, Vec3::ONE, Vec3::ONE);
     assert_eq!(s, 0.0);
 }
+
+/// Regression: a bush from ez-tree whose drooping twigs hang lower than
+/// its trunk's base was rooted at a twig tip (root radius 0.001 m against
+/// a 0.58 m trunk): only the ends within 2 % of the height above the
+/// lowest point were considered, and only twig tips lay there. The root
+/// is the thick base of the trunk.
+#[test]
+fn a_twig_hanging_below_the_trunk_base_is_not_the_root() {
+    let trunk = Piece {
+        points: vec![Vec3::ZERO, Vec3::Y * 2.0],
+        radii: vec![0.3, 0.2],
+        edges: vec![(0, 1)],
+    };
+    // A drooping branch from the trunk's top, its tip 0.2 m below the base.
+    let droop = Piece {
+        points: vec![
+            Vec3::new(0.05, 1.9, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(1.5, -0.2, 0.0),
+        ],
+        radii: vec![0.05, 0.02, 0.001],
+        edges: vec![(0, 1), (1, 2)],
+    };
+    let nodes = assemble(&[droop, trunk], &mut Vec::new()).unwrap();
+    assert_eq!(nodes[0].position, Vec3::ZERO, "root: the trunk's base");
+}

@@ -89,7 +89,9 @@ fn third_party_trees_import() {
             "{name}: leaves"
         );
         assert_eq!(report.skipped_leaves, 0, "{name}");
-        // One tree (Tree validates connectivity) rooted at its lowest point.
+        // One tree (Tree validates connectivity) rooted near its lowest
+        // point: at the trunk's base, which a bush's drooping twigs can
+        // hang below (the radius checks below see that it is the trunk).
         let root = sk.node(0);
         let lowest = sk
             .nodes()
@@ -98,8 +100,8 @@ fn third_party_trees_import() {
             .fold(f32::MAX, f32::min);
         let height = tree.stats().height;
         assert!(
-            root.position.y <= lowest + 0.01 * height,
-            "{name}: root is not lowest"
+            root.position.y <= lowest + 0.25 * height,
+            "{name}: root is not near the lowest point"
         );
         // The skeleton lies inside the wood: every branch midpoint is about
         // its radius from the wood surface (nearest of the triangles around

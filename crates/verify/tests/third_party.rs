@@ -2,6 +2,7 @@
 //! at test time by `tools/third-party-trees` from pinned packages): what a
 //! user receives, measured on the meshes we write.
 //!
+//! - every tree imports with 2,000–15,000 branches;
 //! - the imported tree, as written, covers the original bark and no more:
 //!   both ways, the 95th percentile of the distances between the two
 //!   surfaces is at most 1 % of the tree's height;
@@ -201,6 +202,17 @@ fn tree_results(trees: &[Loaded], k: usize) -> (String, Failures, Vec<f32>) {
 /// The tree's own columns: its size, its original GLB's check and frame 0
 /// of the imported tree, written.
 fn tree_row(t: &Loaded, failures: &mut Failures) -> String {
+    let branches = t.tree.stats().branches;
+    failures.check(
+        format!("{} size", t.name),
+        (2_000..=15_000).contains(&branches),
+        || {
+            format!(
+                "{}: {branches} branches, not 2,000–15,000: the set does not test the sizes asked for",
+                t.name
+            )
+        },
+    );
     let options = PlausibilityOptions::default();
     let original = Plausibility::of(&read_glb(&t.bytes).unwrap().view(), &options).unwrap();
     failures.check(

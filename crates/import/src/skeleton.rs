@@ -9,7 +9,9 @@
 //!    thickest is the root: the lowest, thickest point. Drooping twigs can
 //!    hang lower than the trunk's base (an ez-tree bush's do), so when an
 //!    end in the lowest quarter of the tree is more than 4 × as thick, it
-//!    is the root instead: a trunk's base, not a twig's tip.
+//!    is the root instead: a trunk's base, not a twig's tip. With no end
+//!    near the ground (a contracted bark's base cap can be a junction),
+//!    the lowest point is the root.
 //! 2. **Candidates.** For each end of every other piece, the nearest points
 //!    on up to four other pieces (a kd-tree over points sampled along every
 //!    segment, then the exact point–segment distance).
@@ -204,16 +206,16 @@ impl Soup {
         self.degree[v] <= 1
     }
 
-    /// Step 1: the thickest end near the ground — unless a thicker end lies
-    /// in the lowest quarter of the tree (see the module docs) — else the
-    /// lowest point.
+    /// Step 1: the thickest end near the ground — unless a much thicker end
+    /// lies in the lowest quarter of the tree (see the module docs) — else,
+    /// with no end near the ground, the lowest point.
     fn root(&self) -> Result<usize, ImportError> {
         let height = self.ymax - self.ymin;
         let ground = self.thickest_end_below(self.ymin + GROUND * height);
         let low = self.thickest_end_below(self.ymin + LOW * height);
         let root = match (ground, low) {
             (Some(g), Some(l)) if self.rad[g] < THIN * self.rad[l] => Some(l),
-            (g, l) => g.or(l),
+            (g, _) => g,
         };
         root.or_else(|| {
             (0..self.own_points()).min_by(|&a, &b| self.pos[a].y.total_cmp(&self.pos[b].y))

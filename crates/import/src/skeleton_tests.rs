@@ -163,3 +163,20 @@ fn a_twig_hanging_below_the_trunk_base_is_not_the_root() {
     let nodes = assemble(&[droop, trunk], &mut Vec::new()).unwrap();
     assert_eq!(nodes[0].position, Vec3::ZERO, "root: the trunk's base");
 }
+
+/// Regression: a contracted welded bark whose trunk base is a junction
+/// (its cap contracted to a point with two neighbours), not an end, has no
+/// end on the ground; the root fell to the thickest end in the lowest
+/// quarter, a limb's stub 5 m up a 15 m Modular Tree broadleaf, instead of
+/// the lowest point. With no end on the ground the lowest point is the
+/// root, as before the drooping-twig rule.
+#[test]
+fn a_trunk_base_that_is_a_junction_stays_the_root() {
+    let trunk = Piece {
+        points: vec![Vec3::ZERO, Vec3::Y, Vec3::new(0.3, 0.1, 0.0), Vec3::Y * 3.0],
+        radii: vec![0.3, 0.25, 0.1, 0.05],
+        edges: vec![(0, 1), (0, 2), (1, 3)],
+    };
+    let nodes = assemble(&[trunk], &mut Vec::new()).unwrap();
+    assert_eq!(nodes[0].position, Vec3::ZERO, "root: the trunk's base");
+}

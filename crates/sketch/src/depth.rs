@@ -38,8 +38,8 @@ use crate::plan::SketchPlan;
 const MAX_SCALE: f32 = 4.0;
 
 /// The 5th-to-95th-percentile spread of `x` (reordered; 0 for fewer than
-/// two values).
-fn spread(x: &mut [f32]) -> f32 {
+/// two values). Also the crown depth/width metric's.
+pub(crate) fn spread(x: &mut [f32]) -> f32 {
     if x.len() < 2 {
         return 0.0;
     }

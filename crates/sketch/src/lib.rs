@@ -162,11 +162,10 @@
 //!    Details in the `foliage` module.
 //!
 //! # Frames ([`Sketcher::deform`])
-//! Everything is computed as **displacements in the view plane** (NDC) and
-//! applied at each point's rest depth: a world point moves by
-//! `right · dx · s_x(z) + up · dy · s_y(z)` ([`Camera::world_delta`]) at
-//! constant depth, and t = 0 (all displacements exactly zero) reproduces
-//! the input bit for bit. At time t: the crown cage moves to
+//! The cages and chain systems work in **displacements in the view plane**
+//! (NDC); a node is placed at its displaced screen position, unprojected
+//! at a depth that follows the crown's width (`depth` module), and t = 0
+//! reproduces the input bit for bit. At time t: the crown cage moves to
 //! `S(t) = S0 + t (S1 − S0)` per corresponding sample; each cage follows
 //! its parent by MVC plus `t ×` its self-adaptive correction; chain targets
 //! follow their control cages; chains are solved order by order, each

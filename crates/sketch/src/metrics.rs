@@ -55,17 +55,11 @@ use serde::Serialize;
 use treemorph_tree::Frame;
 use treemorph_tree::geom::closest_on_segment;
 
+use crate::depth::spread;
 use crate::frechet::discrete_frechet_with;
 use crate::plan::SketchPlan;
 use crate::polygon;
 use crate::rigid::growth;
-
-/// The 5th-to-95th-percentile spread of `v` (reordered).
-fn spread(v: &mut [f32]) -> f32 {
-    v.sort_unstable_by(f32::total_cmp);
-    let at = |q: f32| v[((v.len() - 1) as f32 * q).round() as usize];
-    at(0.95) - at(0.05)
-}
 
 /// Samples per curve for the Fréchet distance.
 const SAMPLES: usize = 128;
@@ -156,6 +150,7 @@ impl<'p> SketchMetrics<'p> {
     pub fn measure(&mut self, frame: &Frame) -> FrameMetrics {
         let shape = self.shape(frame);
         let (floating_branches, floating_leaves) = self.floating(frame);
+        let (max_stretch, max_growth) = self.stretch_and_growth(frame);
         FrameMetrics {
             t: shape.t,
             frechet: shape.frechet,
@@ -165,8 +160,8 @@ impl<'p> SketchMetrics<'p> {
             spill: shape.spill,
             floating_branches,
             floating_leaves,
-            max_stretch: self.stretch(frame),
-            max_growth: self.growth(frame),
+            max_stretch,
+            max_growth,
             crown_depth_width: self.crown_depth_width(frame),
         }
     }
@@ -179,13 +174,7 @@ impl<'p> SketchMetrics<'p> {
     /// Segments shorter than 10⁻⁶ × the tree height at rest are skipped.
     /// 0 for a frame of another topology.
     pub fn stretch(&self, frame: &Frame) -> f32 {
-        self.chain_lengths(frame)
-            .map(|(g, segments)| {
-                segments
-                    .map(|(rest, len)| (len / (g * rest) - 1.0).abs())
-                    .fold(0.0f32, f32::max)
-            })
-            .fold(0.0, f32::max)
+        self.stretch_and_growth(frame).0
     }
 
     /// `max |g − 1|` over the chains that do not wilt, `g` a chain's
@@ -195,9 +184,19 @@ impl<'p> SketchMetrics<'p> {
     /// limbs; one that pulls it in shrinks them. 0 for a frame of another
     /// topology.
     pub fn growth(&self, frame: &Frame) -> f32 {
+        self.stretch_and_growth(frame).1
+    }
+
+    /// [`SketchMetrics::stretch`] and [`SketchMetrics::growth`] in one walk
+    /// over the chains.
+    fn stretch_and_growth(&self, frame: &Frame) -> (f32, f32) {
         self.chain_lengths(frame)
-            .map(|(g, _)| (g - 1.0).abs())
-            .fold(0.0, f32::max)
+            .fold((0.0f32, 0.0f32), |(stretch, growth), (g, segments)| {
+                let worst = segments
+                    .map(|(rest, len)| (len / (g * rest) - 1.0).abs())
+                    .fold(stretch, f32::max);
+                (worst, growth.max((g - 1.0).abs()))
+            })
     }
 
     /// Per chain that does not wilt: its growth and its segments' rest and

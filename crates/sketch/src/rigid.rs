@@ -158,7 +158,8 @@ impl Rigid {
         self.solved.clear();
         self.solved.extend_from_slice(positions);
         for &c in &self.order {
-            let (a, b) = plan.chain_ranges[c as usize];
+            let c = c as usize;
+            let (a, b) = plan.chain_ranges[c];
             let nodes = &plan.chain_nodes[a as usize..b as usize];
             if nodes.len() < 2 {
                 continue;
@@ -166,12 +167,11 @@ impl Rigid {
             let junction = nodes[0] as usize;
             let tip = nodes[nodes.len() - 1] as usize;
             let shift = positions[junction] - self.solved[junction];
-            let target = if self.caged[c as usize] {
+            let target = if self.caged[c] {
                 self.solved[tip]
             } else {
                 self.solved[tip] + shift
             };
-            let c = c as usize;
             let chord = positions[junction].distance(target);
             let g = growth(self.rest_chord[c], self.rest_length[c], chord);
             let lengths = &self.rest_segment[a as usize..b as usize - 1];

@@ -66,9 +66,12 @@ impl<'p> Sketcher<'p> {
     ///    propagation from the tip), each chain's junction fixed where its
     ///    parent put it (forward propagation) — chains stay connected by
     ///    construction.
-    /// 3. Nodes move in the view plane at their rest depth; pruned chains
-    ///    shrink toward their junction by `1 − t` (radii too) and their
-    ///    leaves with them; leaves ride on their branch, rotated with it.
+    /// 3. Nodes go where the solve put them on screen, their depth scaled
+    ///    with the crown's width (`depth` module); every chain is then
+    ///    re-solved to keep its segment lengths (`rigid` module); pruned
+    ///    chains shrink toward their junction by `1 − t` (radii too) and
+    ///    their leaves with them; leaves ride on their branch, rotated
+    ///    with it.
     pub fn deform(&mut self, t: f32, frame: &mut Frame) {
         let t = clamp_t(t);
         let plan = self.plan;
@@ -107,8 +110,8 @@ impl<'p> Sketcher<'p> {
 
         // Positions: the input at t = 0, bit for bit; else on screen where
         // the solve put them, caged nodes' depths scaled with the crown's
-        // width (`depth`), and nodes between a chain's joints at their
-        // rest share of its length (`rigid`).
+        // width (`depth`), then every chain re-solved with its rest
+        // segment lengths times its growth (`rigid`).
         let rest = &plan.rest;
         frame.t = t;
         frame.bark_blend = 0.0;

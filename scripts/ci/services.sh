@@ -29,28 +29,37 @@ _free_port() {
   python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
 }
 
+# As root, PostgreSQL runs as `postgres`, which may not traverse the
+# checkout (a clone in a `mktemp -d` directory is 0700): it works from `/`.
 _as_pg() {
-  if [ "$(id -u)" = 0 ]; then runuser -u postgres -- "$@"; else "$@"; fi
+  if [ "$(id -u)" = 0 ]; then (cd / && runuser -u postgres -- "$@"); else "$@"; fi
 }
 
 services_start() {
   local dir=$1 logs=$2
-  mkdir -p "$dir/pg" "$logs"
+  mkdir -p "$logs"
+  local pg="$dir/pg" pg_log="$logs/postgres.log"
   if [ "$(id -u)" = 0 ]; then
-    chmod 755 "$dir"
-    chown postgres "$dir/pg"
-    touch "$logs/postgres.log" && chown postgres "$logs/postgres.log"
+    # Data, socket and log where `postgres` can reach them whatever the
+    # checkout's permissions; the log is linked from the artefacts.
+    pg=$(mktemp -d /tmp/treemorph-pg.XXXXXX)
+    chmod 755 "$pg"
+    chown postgres "$pg"
+    pg_log="$pg/postgres.log"
+    ln -sfn "$pg_log" "$logs/postgres.log"
+  else
+    mkdir -p "$pg"
   fi
   [ -x "$PG_BIN/initdb" ] || { echo "PostgreSQL 15 is missing: apt-get install -y postgresql-15" >&2; return 1; }
   command -v "$MOTO_SERVER" >/dev/null || { echo "moto_server is missing: pip install 'moto[server]'" >&2; return 1; }
 
   local pg_port s3_port
   pg_port=$(_free_port)
-  _services_pg_data="$dir/pg/data"
+  _services_pg_data="$pg/data"
   _as_pg "$PG_BIN/initdb" -D "$_services_pg_data" -A trust -U postgres -E UTF8 --no-sync >"$logs/initdb.log" 2>&1
   # fsync off: a test server, and the test kills workers, not the database.
-  _as_pg "$PG_BIN/pg_ctl" -D "$_services_pg_data" -l "$logs/postgres.log" -w -t 60 \
-    -o "-p $pg_port -k $dir/pg -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=300" start >/dev/null
+  _as_pg "$PG_BIN/pg_ctl" -D "$_services_pg_data" -l "$pg_log" -w -t 60 \
+    -o "-p $pg_port -k $pg -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=300" start >/dev/null
   export TREEMORPH_TEST_POSTGRES_URL="postgres://postgres@127.0.0.1:$pg_port"
   SERVICES_PG_PORT=$pg_port
 

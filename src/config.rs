@@ -107,7 +107,8 @@ pub struct Settings {
     #[arg(long, env = "TREEMORPH_CORS_ORIGINS", value_delimiter = ',')]
     pub cors_origins: Vec<String>,
     /// Seconds a request may take (not the SSE and stream routes, which
-    /// last as long as their job).
+    /// last as long as their job, nor a tree upload's body, which may take
+    /// as long as it keeps arriving above `--min-body-rate`).
     #[arg(long, env = "TREEMORPH_REQUEST_TIMEOUT", default_value_t = 60)]
     pub request_timeout: u64,
     /// Seconds a client has to send a request's headers (slow-client
@@ -136,11 +137,40 @@ pub struct Settings {
     /// pushed at once).
     #[arg(long, env = "TREEMORPH_POLL_MS", default_value_t = 150)]
     pub poll_ms: u64,
+    /// How long an ended job (succeeded, failed or cancelled) and its
+    /// outputs are kept, counted from its end: seconds, or a duration
+    /// such as `7d`, `12h`, `30m`; 0 keeps them forever.
+    #[arg(long, env = "TREEMORPH_RESULT_TTL", default_value = "7d")]
+    pub result_ttl: Ttl,
+    /// Seconds between sweeps: expiring ended jobs past `--result-ttl`
+    /// and removing what a crash left behind (upload spool files, blobs
+    /// without a row). Every process also sweeps when it starts.
+    #[arg(long, env = "TREEMORPH_SWEEP_SECS", default_value_t = 600)]
+    pub sweep_secs: u64,
     /// TEST ONLY: replace the pipeline by a synthetic runner
     /// (`slow:MS_PER_FRAME`). Used by the crash and shutdown tests, which
     /// run the real binary.
     #[arg(long, env = "TREEMORPH_TEST_RUNNER", hide = true)]
     pub test_runner: Option<String>,
+}
+
+/// A retention period; `None` keeps forever.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ttl(pub Option<Duration>);
+
+impl std::str::FromStr for Ttl {
+    type Err = String;
+
+    /// `0` (forever), whole seconds, or a duration such as `7d`, `1h 30m`.
+    fn from_str(s: &str) -> Result<Ttl, String> {
+        let s = s.trim();
+        let duration = match s.parse::<u64>() {
+            Ok(secs) => Duration::from_secs(secs),
+            Err(_) => humantime::parse_duration(s)
+                .map_err(|e| format!("{s:?} is not a duration (e.g. 7d, 12h, 3600): {e}"))?,
+        };
+        Ok(Ttl((!duration.is_zero()).then_some(duration)))
+    }
 }
 
 impl Settings {
@@ -230,6 +260,22 @@ mod tests {
         assert_eq!(s.role, Role::All);
         assert_eq!(s.max_frames, 600);
         assert!(s.worker_count() >= 1);
+        assert_eq!(s.result_ttl, Ttl(Some(Duration::from_secs(7 * 86_400))));
+    }
+
+    #[test]
+    fn result_ttls_parse() {
+        let ttl = |s: &str| s.parse::<Ttl>().map(|t| t.0);
+        assert_eq!(ttl("0"), Ok(None));
+        assert_eq!(ttl("90"), Ok(Some(Duration::from_secs(90))));
+        assert_eq!(ttl("12h"), Ok(Some(Duration::from_secs(12 * 3600))));
+        assert_eq!(ttl("1h 30m"), Ok(Some(Duration::from_secs(5400))));
+        assert!(
+            ttl("soon")
+                .unwrap_err()
+                .contains("\"soon\" is not a duration")
+        );
+        assert!(ttl("-5").is_err());
     }
 
     #[test]

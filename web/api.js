@@ -234,9 +234,9 @@ export class Api {
     return this.json('GET', `/v1/jobs/${encodeURIComponent(id)}`, { signal });
   }
 
-  /** `DELETE /v1/jobs/{id}`: asks the job to stop. */
+  /** `POST /v1/jobs/{id}/cancel`: asks the job to stop (never deletes it). */
   cancelJob(id) {
-    return this.json('DELETE', `/v1/jobs/${encodeURIComponent(id)}`);
+    return this.json('POST', `/v1/jobs/${encodeURIComponent(id)}/cancel`);
   }
 
   /** Paths of a job's downloadable outputs. */

@@ -286,7 +286,8 @@ def driver(life, base, ledger, stop, rng, kill_at):
             victim = rng.choice(ids)
             with ledger.lock:
                 ledger.cancels.setdefault(victim, "unacknowledged")
-            r = request(base, "DELETE", f"/v1/jobs/{victim}")
+            # POST …/cancel: DELETE would delete a job that has ended.
+            r = request(base, "POST", f"/v1/jobs/{victim}/cancel")
             if r.status == 200:
                 doc = r.json()
                 with ledger.lock:
@@ -295,7 +296,7 @@ def driver(life, base, ledger, stop, rng, kill_at):
                     elif ledger.cancels[victim] != "cancelled":
                         ledger.cancels[victim] = "requested"
             else:
-                check(r.status == 409, f"DELETE /v1/jobs/{victim} answered {r.status}: {r.body[:300]!r}")
+                check(r.status == 409, f"POST /v1/jobs/{victim}/cancel answered {r.status}: {r.body[:300]!r}")
         racer = f"crash-{life}-race"
         trees = ledger.tree_ids()
         a, b = rng.sample(trees, 2)

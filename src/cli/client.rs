@@ -10,6 +10,7 @@
 //! treemorph client watch JOB                           (progress from SSE)
 //! treemorph client download JOB [--format …] -o DIR
 //! treemorph client cancel JOB
+//! treemorph client delete JOB                          (cancels first if it runs)
 //! ```
 //!
 //! `--server URL` (`TREEMORPH_SERVER`, default `http://127.0.0.1:8080`)
@@ -130,8 +131,11 @@ enum ClientCommand {
     Watch(JobArg),
     /// Download a finished job's outputs into a directory.
     Download(DownloadArgs),
-    /// Cancel a job.
+    /// Cancel a queued or running job (never deletes it).
     Cancel(JobArg),
+    /// Delete a job and every output it stored; a queued or running job is
+    /// cancelled first and deleted once it has stopped.
+    Delete(JobArg),
 }
 
 /// `client upload`.
@@ -306,6 +310,7 @@ async fn run_async(args: &Args) -> Result<(), Failure> {
             Ok(())
         }
         ClientCommand::Cancel(a) => cancel(&api, &a.job, json).await,
+        ClientCommand::Delete(a) => delete(&api, &a.job, json).await,
     }
 }
 
@@ -536,7 +541,7 @@ async fn status(api: &Api, id: &str, json: bool) -> Result<(), Failure> {
 
 async fn cancel(api: &Api, id: &str, json: bool) -> Result<(), Failure> {
     let (info, raw) = api
-        .json::<JobInfo>(api.request(Method::DELETE, api.v1(&["jobs", id])?))
+        .json::<JobInfo>(api.request(Method::POST, api.v1(&["jobs", id, "cancel"])?))
         .await?;
     if json {
         return print_json(&raw);
@@ -549,6 +554,35 @@ async fn cancel(api: &Api, id: &str, json: bool) -> Result<(), Failure> {
             info.id
         );
         println_out(&format!("{} (cancel requested)", info.status.as_str()))
+    }
+}
+
+/// How long `delete` waits for a cancelled job to stop: a running job
+/// stops within a frame, a job whose worker died once its lease expires.
+const DELETE_PATIENCE: std::time::Duration = std::time::Duration::from_secs(120);
+
+async fn delete(api: &Api, id: &str, json: bool) -> Result<(), Failure> {
+    let started = std::time::Instant::now();
+    loop {
+        let response = api
+            .send(api.request(Method::DELETE, api.v1(&["jobs", id])?))
+            .await?;
+        if response.status() == reqwest::StatusCode::NO_CONTENT {
+            return if json {
+                print_json(&serde_json::json!({"id": id, "deleted": true}))
+            } else {
+                println_out("deleted")
+            };
+        }
+        // 200: the job was queued or running and is now cancelled or
+        // stopping; it is deleted by the next request once it has ended.
+        if started.elapsed() > DELETE_PATIENCE {
+            return Err(failure(
+                EXIT_FAILURE,
+                anyhow!("job {id} was cancelled but has not stopped; try again later"),
+            ));
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(250)).await;
     }
 }
 

@@ -33,6 +33,7 @@
 pub mod bench;
 pub mod priority;
 pub mod queue;
+pub mod retention;
 pub mod sink;
 pub mod testing;
 pub mod tree_cache;

@@ -205,6 +205,11 @@ impl JobRow {
     }
 }
 
+/// The blob prefix of everything a job owns: every attempt's outputs.
+pub fn job_prefix(job: &str) -> String {
+    format!("jobs/{job}")
+}
+
 /// The blob prefix of one attempt's outputs.
 pub fn attempt_prefix(job: &str, token: &str) -> String {
     format!("jobs/{job}/{token}")
@@ -721,6 +726,73 @@ pub async fn cancel(db: &Db, owner: &str, id: &str) -> Result<Cancel, sqlx::Erro
         Some(row) if row.status == JobStatus::Cancelled => Cancel::AlreadyCancelled(row),
         Some(row) => Cancel::Finished(row),
     })
+}
+
+/// Deletes a job that has ended (succeeded, failed or cancelled) and
+/// ended before `ended_before` (ms), with the records of its webhook
+/// deliveries that are done; a delivery still pending stays, so the
+/// job's end is still announced. `owner` scopes a client's request;
+/// retention passes `None`. Returns whether the row went; its blobs
+/// ([`job_prefix`]) are the caller's to delete next. Row first, blobs
+/// second: a crash in between leaves blobs without a row, which the
+/// orphan sweep removes, never a row without its blobs.
+pub async fn delete_ended(
+    db: &Db,
+    owner: Option<&str>,
+    id: &str,
+    ended_before: i64,
+) -> Result<bool, sqlx::Error> {
+    const ENDED: &str = "status IN ('succeeded', 'failed', 'cancelled') AND updated_at < $2";
+    let mut tx = db.writer.begin().await?;
+    let deleted = match owner {
+        Some(owner) => {
+            // Our own constant only: no input reaches the SQL text.
+            sqlx::query(sqlx::AssertSqlSafe(format!(
+                "DELETE FROM jobs WHERE id = $1 AND {ENDED} AND owner = $3"
+            )))
+            .bind(id)
+            .bind(ended_before)
+            .bind(owner)
+            .execute(&mut *tx)
+            .await?
+        }
+        None => {
+            sqlx::query(sqlx::AssertSqlSafe(format!(
+                "DELETE FROM jobs WHERE id = $1 AND {ENDED}"
+            )))
+            .bind(id)
+            .bind(ended_before)
+            .execute(&mut *tx)
+            .await?
+        }
+    }
+    .rows_affected();
+    if deleted == 1 {
+        sqlx::query("DELETE FROM webhook_deliveries WHERE job_id = $1 AND state <> 'pending'")
+            .bind(id)
+            .execute(&mut *tx)
+            .await?;
+    }
+    tx.commit().await?;
+    Ok(deleted == 1)
+}
+
+/// Up to `limit` jobs that ended before `ended_before` (ms), oldest
+/// first: what `--result-ttl` expires.
+pub async fn ended_before(
+    db: &Db,
+    ended_before: i64,
+    limit: u32,
+) -> Result<Vec<String>, sqlx::Error> {
+    let rows = sqlx::query(
+        "SELECT id FROM jobs WHERE status IN ('succeeded', 'failed', 'cancelled') \
+         AND updated_at < $1 ORDER BY updated_at LIMIT $2",
+    )
+    .bind(ended_before)
+    .bind(i64::from(limit))
+    .fetch_all(&db.pool)
+    .await?;
+    rows.iter().map(|r| r.try_get::<String, _>("id")).collect()
 }
 
 /// Returns jobs whose lease expired to the queue (or ends them: cancelled

@@ -12,10 +12,16 @@
 //!   that job (`202`, same `id`) — also under concurrency, since the unique
 //!   index decides. A different body with a reused key is 422
 //!   `idempotency_key_reused`. Keys are scoped per API key.
-//! - **Cancelling** a queued job cancels it at once; a running job gets
-//!   `cancel_requested: true` and stops within one frame (the response is
-//!   the job with status `running`); cancelling a cancelled job again is a
-//!   no-op `200`; a succeeded or failed job answers 409 `job_finished`.
+//! - **Cancelling** (`DELETE /v1/jobs/{id}`, or `POST
+//!   /v1/jobs/{id}/cancel`, which never deletes) a queued job cancels it
+//!   at once; a running job gets `cancel_requested: true` and stops within
+//!   one frame (the response is the job with status `running`).
+//! - **Deleting.** `DELETE` on a job that has ended (succeeded, failed or
+//!   cancelled) deletes the job and every blob it owns (204), after which
+//!   the job answers 404; `--result-ttl` does the same to jobs that ended
+//!   long enough ago ([`crate::jobs::retention`]). `POST …/cancel` on a
+//!   cancelled job is a no-op `200`, on a succeeded or failed one 409
+//!   `job_finished`.
 //! - Whole-sequence outputs (`animation.glb`, `stream.tmd`,
 //!   `metrics.json`) of a job that has not succeeded (yet) answer 409
 //!   `not_ready` while it is queued or running and 404 once it failed or
@@ -40,6 +46,7 @@ use super::extract::{ApiQuery, decode_cursor, encode_cursor, json_body, page_lim
 use super::{AppState, Owner, blob};
 use crate::error::ApiError;
 use crate::jobs::queue::{self, Cancel, Created, JobRow, NewJob};
+use crate::jobs::retention;
 use crate::store::new_id;
 
 /// The routes of this module.
@@ -47,6 +54,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(post, list))
         .routes(routes!(get, delete))
+        .routes(routes!(cancel))
         .routes(routes!(frame))
         .routes(routes!(animation))
         .routes(routes!(metrics))
@@ -252,11 +260,12 @@ pub async fn get(
     Ok(Json(find(&state, &owner, &id).await?.info()))
 }
 
-/// Cancel a job.
+/// Cancel or delete a job.
 ///
-/// A queued job is cancelled at once; a running one stops within a frame
-/// (the response shows `cancel_requested: true`). Cancelling a cancelled job
-/// again is a no-op.
+/// A queued job is cancelled at once and a running one stops within a
+/// frame (the response shows `cancel_requested: true`): 200 with the job.
+/// A job that has ended (succeeded, failed or cancelled) is deleted with
+/// every output it stored: 204, after which the job answers 404.
 #[utoipa::path(
     delete,
     path = "/v1/jobs/{id}",
@@ -265,32 +274,85 @@ pub async fn get(
     params(("id" = String, Path, description = "Job id")),
     responses(
         (status = 200, description = "Cancelled, or cancellation requested", body = JobInfo),
+        (status = 204, description = "The job had ended; it and its outputs are deleted"),
         (status = 404, description = "No such job (`not_found`)", body = treemorph_api::ErrorBody),
-        (status = 409, description = "The job already succeeded or failed (`job_finished`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn delete(
     State(state): State<AppState>,
     owner: Owner,
     Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    path_id(&id, "job")?;
+    match cancel_queued_or_running(&state, &owner, &id).await? {
+        Ok(info) => Ok(Json(info).into_response()),
+        Err(_ended) => {
+            let db = &state.services.db;
+            if !queue::delete_ended(db, Some(&owner.0), &id, i64::MAX).await? {
+                // Deleted by a concurrent request or by expiry meanwhile.
+                return Err(ApiError::not_found("job"));
+            }
+            retention::delete_job_blobs(&state.services.blobs, &id).await;
+            state.services.hub.changed(&id);
+            Ok(StatusCode::NO_CONTENT.into_response())
+        }
+    }
+}
+
+/// Cancel a job, never deleting it.
+///
+/// The cancellation of `DELETE /v1/jobs/{id}` for clients that must not
+/// delete by mistake: a queued job is cancelled at once, a running one
+/// stops within a frame (`cancel_requested: true`), a cancelled one is
+/// answered as it is, and a job that succeeded or failed answers 409
+/// `job_finished`.
+#[utoipa::path(
+    post,
+    path = "/v1/jobs/{id}/cancel",
+    operation_id = "cancel_job_only",
+    tag = "jobs",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Cancelled, or cancellation requested", body = JobInfo),
+        (status = 404, description = "No such job (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The job already succeeded or failed (`job_finished`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn cancel(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
 ) -> Result<Json<JobInfo>, ApiError> {
     path_id(&id, "job")?;
-    match queue::cancel(&state.services.db, &owner.0, &id).await? {
-        Cancel::Cancelled(row) => {
-            state.services.hub.changed(&id);
-            state.services.hub.webhooks.notify_one();
-            Ok(Json(row.info()))
-        }
-        Cancel::Requested(row) => {
-            state.services.hub.cancel(&id);
-            state.services.hub.changed(&id);
-            Ok(Json(row.info()))
-        }
-        Cancel::AlreadyCancelled(row) => Ok(Json(row.info())),
-        Cancel::Finished(row) => Err(ApiError::new(
+    match cancel_queued_or_running(&state, &owner, &id).await? {
+        Ok(info) => Ok(Json(info)),
+        Err(row) if row.status == JobStatus::Cancelled => Ok(Json(row.info())),
+        Err(row) => Err(ApiError::new(
             ErrorCode::JobFinished,
             format!("the job already {}", row.status.as_str()),
         )),
+    }
+}
+
+/// Cancels `owner`'s job `id` if it is queued or running (the job as it
+/// is now), or returns it as it ended (`Err`); 404 when there is none.
+async fn cancel_queued_or_running(
+    state: &AppState,
+    owner: &Owner,
+    id: &str,
+) -> Result<Result<JobInfo, JobRow>, ApiError> {
+    match queue::cancel(&state.services.db, &owner.0, id).await? {
+        Cancel::Cancelled(row) => {
+            state.services.hub.changed(id);
+            state.services.hub.webhooks.notify_one();
+            Ok(Ok(row.info()))
+        }
+        Cancel::Requested(row) => {
+            state.services.hub.cancel(id);
+            state.services.hub.changed(id);
+            Ok(Ok(row.info()))
+        }
+        Cancel::AlreadyCancelled(row) | Cancel::Finished(row) => Ok(Err(row)),
         Cancel::NotFound => Err(ApiError::not_found("job")),
     }
 }

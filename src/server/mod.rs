@@ -16,7 +16,8 @@
 //! - **Rate limit.** A token bucket per owner (`--rate-limit`,
 //!   `--rate-burst`); 429 `rate_limited` with `Retry-After`.
 //! - **Timeouts.** Request handling is bounded by `--request-timeout`
-//!   except on the SSE and stream routes, which last as long as their job.
+//!   except on the SSE and stream routes, which last as long as their job,
+//!   and a tree upload's body, which may take as long as it keeps flowing.
 //!   Slow clients are bounded by hyper's `header_read_timeout`
 //!   (`--header-read-timeout`; plain `axum::serve` has none), slow bodies
 //!   by a minimum average rate ([`slow_body`], `--min-body-rate`), and
@@ -82,37 +83,11 @@ pub struct AppState {
 /// Largest request head (request line and headers) the server reads.
 const MAX_HEAD_BYTES: usize = 64 * 1024;
 
-/// Removes upload spool files a crash (kill -9) left behind. Only files
-/// older than twice the request timeout go: no live request of this or
-/// another process sharing the data directory can still own one.
-fn sweep_spool(dir: &std::path::Path, request_timeout: u64) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let max_age = Duration::from_secs(request_timeout.max(1) * 2);
-    let mut removed = 0usize;
-    for entry in entries.flatten() {
-        let old = entry
-            .metadata()
-            .and_then(|m| m.modified())
-            .ok()
-            .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age > max_age);
-        if old && entry.file_type().is_ok_and(|t| t.is_file()) {
-            removed += usize::from(std::fs::remove_file(entry.path()).is_ok());
-        }
-    }
-    if removed > 0 {
-        tracing::info!(removed, dir = %dir.display(), "removed stale upload spool files");
-    }
-}
-
 impl AppState {
     /// Connects to the database (migrating it) and the blob store.
     pub async fn new(settings: Settings, runner: Arc<dyn Runner>) -> anyhow::Result<AppState> {
         std::fs::create_dir_all(&settings.data_dir)?;
         std::fs::create_dir_all(settings.data_dir.join("tmp"))?;
-        sweep_spool(&settings.data_dir.join("tmp"), settings.request_timeout);
         let db = Db::connect(&settings.database_url()).await?;
         db.migrate().await?;
         let blobs = Blobs::open(&settings.blob_url()?)?;
@@ -157,6 +132,11 @@ impl AppState {
     /// The settings.
     pub fn settings(&self) -> &Settings {
         &self.services.settings
+    }
+
+    /// How long a request may take (`--request-timeout`).
+    pub fn request_timeout(&self) -> Duration {
+        Duration::from_secs(self.settings().request_timeout.max(1))
     }
 
     /// Signals live streams to end.
@@ -340,20 +320,36 @@ async fn method_not_allowed() -> ApiError {
 /// The `/v1` routes and their OpenAPI description. Routes that stream for
 /// as long as a job runs (SSE, delta stream) get no request timeout.
 pub fn api_routes(state: &AppState) -> OpenApiRouter<AppState> {
-    let timeout = Duration::from_secs(state.settings().request_timeout.max(1));
     let bounded = OpenApiRouter::new()
         .merge(trees::routes())
         .merge(jobs::routes())
-        .layer(tower_http::timeout::TimeoutLayer::with_status_code(
-            StatusCode::SERVICE_UNAVAILABLE,
-            timeout,
-        ));
+        .layer(middleware::from_fn_with_state(state.clone(), time_limit));
     let streaming = OpenApiRouter::new()
         .merge(events::routes())
         .merge(stream::routes());
     bounded
         .merge(streaming)
         .layer(middleware::from_fn_with_state(state.clone(), authenticate))
+}
+
+/// Bounds a request by `--request-timeout` (503 `timeout`), except a tree
+/// upload's body: an upload may take as long as its body keeps arriving
+/// above `--min-body-rate` (the slow-body guard) and under
+/// `--max-upload-bytes`, and the upload handler bounds the work that
+/// follows the body by the same timeout ([`trees::post`]).
+async fn time_limit(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    if request.method() == Method::POST && request.uri().path() == "/v1/trees" {
+        return next.run(request).await;
+    }
+    match tokio::time::timeout(state.request_timeout(), next.run(request)).await {
+        Ok(response) => response,
+        Err(_) => timed_out().into_response(),
+    }
+}
+
+/// The answer to a request that took longer than `--request-timeout`.
+pub fn timed_out() -> ApiError {
+    ApiError::new(ErrorCode::Timeout, "the request took too long")
 }
 
 /// The whole application: `/v1` (unless this is a worker-only process),
@@ -457,6 +453,7 @@ pub async fn serve_state(
         .role
         .runs_workers()
         .then(|| crate::jobs::worker::Pool::start(state.services.clone()));
+    let sweeper = tokio::spawn(crate::jobs::retention::sweep_loop(state.services.clone()));
     let app = router(state.clone());
     let mut http = hyper::server::conn::http1::Builder::new();
     http.timer(TokioTimer::new())
@@ -499,6 +496,7 @@ pub async fn serve_state(
         }
     }
     drop(listener);
+    sweeper.abort();
     tracing::info!("shutting down: no new connections");
     state.begin_shutdown();
     let grace = Duration::from_secs(settings.shutdown_grace);
@@ -539,30 +537,5 @@ pub async fn shutdown_signal() {
     tokio::select! {
         () = ctrl_c => {},
         () = term => {},
-    }
-}
-
-#[cfg(test)]
-mod sweep_tests {
-    use std::time::{Duration, SystemTime};
-
-    /// Regression: spool files of uploads cut off by kill -9 stayed in
-    /// `DATA/tmp` forever.
-    #[test]
-    fn stale_spool_files_go_and_fresh_ones_stay() {
-        let dir = tempfile::tempdir().unwrap();
-        let stale = dir.path().join(".tmpstale");
-        let fresh = dir.path().join(".tmpfresh");
-        std::fs::write(&stale, b"x").unwrap();
-        std::fs::write(&fresh, b"x").unwrap();
-        std::fs::File::options()
-            .write(true)
-            .open(&stale)
-            .unwrap()
-            .set_modified(SystemTime::now() - Duration::from_secs(3600))
-            .unwrap();
-        super::sweep_spool(dir.path(), 60);
-        assert!(!stale.exists());
-        assert!(fresh.exists());
     }
 }

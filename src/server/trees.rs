@@ -280,6 +280,21 @@ pub async fn post(
         return Err(ApiError::invalid("name must be 1 to 256 bytes long"));
     }
     let spooled = spool(&state, &headers, body).await?;
+    let timeout = state.request_timeout();
+    tokio::time::timeout(timeout, import(&state, &owner, name, declared, spooled))
+        .await
+        .map_err(|_| super::timed_out())?
+}
+
+/// Parses, analyses and stores a spooled upload: the part of an upload
+/// the request timeout bounds (its body is bounded by rate and size).
+async fn import(
+    state: &AppState,
+    owner: &Owner,
+    name: String,
+    declared: TreeFileKind,
+    spooled: tempfile::NamedTempFile,
+) -> Result<Response, ApiError> {
     let prepared = tokio::task::spawn_blocking(move || -> Result<Prepared, ApiError> {
         let bytes = std::fs::read(spooled.path()).map_err(ApiError::internal)?;
         drop(spooled);
@@ -313,7 +328,7 @@ pub async fn post(
     })
     .await
     .map_err(ApiError::internal)??;
-    store(&state, &owner, name, declared.name(), prepared).await
+    store(state, owner, name, declared.name(), prepared).await
 }
 
 fn invalid_code(declared: TreeFileKind) -> ErrorCode {

@@ -233,6 +233,29 @@ impl Blobs {
         Ok(())
     }
 
+    /// When the newest blob under `prefix` was written, in ms since the
+    /// epoch; `None` when there is none.
+    pub async fn last_modified(&self, prefix: &str) -> Result<Option<i64>, BlobError> {
+        let mut listing = self.store.list(Some(&Path::from(prefix)));
+        let mut newest = None;
+        while let Some(meta) = listing.next().await {
+            let at = meta?.last_modified.timestamp_millis();
+            newest = Some(newest.map_or(at, |n: i64| n.max(at)));
+        }
+        Ok(newest)
+    }
+
+    /// How many blobs are under `prefix` and their total size in bytes.
+    pub async fn usage(&self, prefix: &str) -> Result<(u64, u64), BlobError> {
+        let mut listing = self.store.list(Some(&Path::from(prefix)));
+        let (mut count, mut bytes) = (0, 0);
+        while let Some(meta) = listing.next().await {
+            count += 1;
+            bytes += meta?.size;
+        }
+        Ok((count, bytes))
+    }
+
     /// The immediate child "directories" of `prefix` (e.g. the attempt
     /// tokens under `jobs/{id}`).
     pub async fn children(&self, prefix: &str) -> Result<Vec<String>, BlobError> {

@@ -479,7 +479,7 @@ async fn a_fleet_of_processes_survives_kill_9() {
         cancelling.spawn(async move {
             tokio::time::sleep(Duration::from_millis(random_u64() % 15_000)).await;
             let r = client
-                .delete(format!("{base}/v1/jobs/{job}"))
+                .post(format!("{base}/v1/jobs/{job}/cancel"))
                 .send()
                 .await
                 .unwrap();

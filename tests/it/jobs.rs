@@ -290,7 +290,9 @@ async fn cancel_queued_and_running_jobs() {
     assert_eq!(s, 200);
     assert_eq!(j["status"], "cancelled");
     assert_eq!(j["error"]["code"], "cancelled");
-    let (s, j) = app.delete(&format!("/v1/jobs/{queued}")).await;
+    let (s, j) = app
+        .post_json(&format!("/v1/jobs/{queued}/cancel"), &json!(null))
+        .await;
     assert_eq!((s, &j["status"]), (200, &json!("cancelled")), "idempotent");
 
     let (s, j) = app.delete(&format!("/v1/jobs/{running}")).await;
@@ -313,8 +315,9 @@ async fn cancel_queued_and_running_jobs() {
     let (_, next) = app.morph(&a, &b, 2).await;
     app.wait_status(next["id"].as_str().unwrap(), "succeeded")
         .await;
+    let next = next["id"].as_str().unwrap();
     let (s, e) = app
-        .delete(&format!("/v1/jobs/{}", next["id"].as_str().unwrap()))
+        .post_json(&format!("/v1/jobs/{next}/cancel"), &json!(null))
         .await;
     assert_eq!((s, error_code(&e)), (409, "job_finished"));
     app.stop().await;

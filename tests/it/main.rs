@@ -12,6 +12,7 @@ mod hostile;
 mod jobs;
 mod openapi;
 mod process;
+mod retention;
 mod scaleout;
 mod security;
 mod streaming;

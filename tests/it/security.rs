@@ -280,6 +280,54 @@ async fn slow_bodies_are_cut_off_by_the_minimum_rate() {
     app.stop().await;
 }
 
+/// An upload that keeps flowing above the minimum rate is not cut off by
+/// the request timeout, however long it takes (a 200 MB GLB over a
+/// 20 Mbit/s link needs 80 s against a 60 s timeout): here a 1 s timeout
+/// and an upload spread over about 3 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn uploads_that_keep_flowing_outlast_the_request_timeout() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.request_timeout = 1;
+        s.header_read_timeout = 1;
+        s.min_body_rate = 100;
+    })
+    .await;
+    let id = app.tree(3).await;
+    let json = app
+        .get(&format!("/v1/trees/{id}/tree.json"))
+        .await
+        .bytes()
+        .await
+        .unwrap();
+    let chunks: Vec<bytes::Bytes> = json
+        .chunks(json.len().div_ceil(12))
+        .map(bytes::Bytes::copy_from_slice)
+        .collect();
+    let slow =
+        futures_util::StreamExt::then(futures_util::stream::iter(chunks), |chunk| async move {
+            tokio::time::sleep(Duration::from_millis(250)).await;
+            Ok::<_, std::io::Error>(chunk)
+        });
+    let started = std::time::Instant::now();
+    let r = app
+        .client
+        .post(app.url("/v1/trees?name=slow"))
+        .header("content-type", "application/vnd.treemorph.tree+json")
+        .body(reqwest::Body::wrap_stream(slow))
+        .send()
+        .await
+        .unwrap();
+    let took = started.elapsed();
+    let status = r.status().as_u16();
+    let body: Value = r.json().await.unwrap_or(Value::Null);
+    assert_eq!(status, 201, "after {took:?}: {body}");
+    assert!(
+        took > Duration::from_secs(2),
+        "the upload was not slow: {took:?}"
+    );
+    app.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cors_answers_configured_origins_only() {
     let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {

@@ -124,6 +124,11 @@ pub struct Settings {
     /// Largest tree upload in bytes.
     #[arg(long, env = "TREEMORPH_MAX_UPLOAD_BYTES", default_value_t = 64 * 1024 * 1024)]
     pub max_upload_bytes: u64,
+    /// Storage quota per API key, in MiB: the bytes its trees and job
+    /// outputs take. An upload that would exceed it, or a job while the
+    /// key is at it, answers 507 `quota_exceeded`. 0: no quota.
+    #[arg(long, env = "TREEMORPH_MAX_STORED_MB_PER_KEY", default_value_t = 0)]
+    pub max_stored_mb_per_key: u64,
     /// Most frames a job may request.
     #[arg(long, env = "TREEMORPH_MAX_FRAMES", default_value_t = 600)]
     pub max_frames: u32,

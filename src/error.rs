@@ -70,6 +70,26 @@ impl ApiError {
         self
     }
 
+    /// 507 `insufficient_storage`, logging `cause`: a full disk is the
+    /// operator's to fix, and retrying at once does not help.
+    pub fn storage_full(cause: impl std::fmt::Display) -> ApiError {
+        ApiError {
+            code: ErrorCode::InsufficientStorage,
+            message: "the server's storage is full; nothing was stored".into(),
+            retry_after: None,
+            cause: Some(cause.to_string()),
+        }
+    }
+
+    /// A local file operation failed: 507 on a full disk, else 500.
+    pub fn io(e: std::io::Error) -> ApiError {
+        if is_storage_full(&e) {
+            ApiError::storage_full(e)
+        } else {
+            ApiError::internal(e)
+        }
+    }
+
     /// The HTTP status.
     pub fn status(&self) -> StatusCode {
         StatusCode::from_u16(self.code.status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR)
@@ -82,8 +102,35 @@ impl std::fmt::Display for ApiError {
     }
 }
 
+/// Whether `error` or anything in its source chain is an I/O error of a
+/// full disk (`ENOSPC`) or an exhausted disk quota (`EDQUOT`).
+pub fn is_storage_full(error: &(dyn std::error::Error + 'static)) -> bool {
+    let mut next = Some(error);
+    while let Some(e) = next {
+        if let Some(io) = e.downcast_ref::<std::io::Error>()
+            && (io.kind() == std::io::ErrorKind::StorageFull
+                || io.kind() == std::io::ErrorKind::QuotaExceeded)
+        {
+            return true;
+        }
+        next = e.source();
+    }
+    false
+}
+
+/// Whether the database refused a write because its disk is full (SQLite
+/// `SQLITE_FULL`, PostgreSQL `disk_full`).
+fn database_full(e: &sqlx::Error) -> bool {
+    e.as_database_error()
+        .and_then(|d| d.code())
+        .is_some_and(|code| code == "13" || code == "53100")
+}
+
 impl From<sqlx::Error> for ApiError {
     fn from(e: sqlx::Error) -> ApiError {
+        if database_full(&e) || is_storage_full(&e) {
+            return ApiError::storage_full(format!("database: {e}"));
+        }
         match e {
             sqlx::Error::PoolTimedOut | sqlx::Error::Io(_) | sqlx::Error::PoolClosed => {
                 ApiError::unavailable(format!("database: {e}"))
@@ -108,7 +155,11 @@ impl From<crate::pipeline::JobError> for ApiError {
 
 impl From<crate::store::BlobError> for ApiError {
     fn from(e: crate::store::BlobError) -> ApiError {
-        ApiError::unavailable(e)
+        if is_storage_full(&e) {
+            ApiError::storage_full(e)
+        } else {
+            ApiError::unavailable(e)
+        }
     }
 }
 
@@ -165,5 +216,33 @@ mod tests {
             .into_response();
         assert_eq!(r.status(), StatusCode::TOO_MANY_REQUESTS);
         assert_eq!(r.headers()[header::RETRY_AFTER], "3");
+    }
+
+    /// A full disk (here `/dev/full`, which answers every write with
+    /// `ENOSPC`) is 507 `insufficient_storage` from a spool write and from
+    /// the blob store, not 503 or 500; other I/O errors stay 500/503.
+    #[test]
+    fn a_full_disk_is_insufficient_storage() {
+        use std::io::Write;
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap()
+            .write_all(&[0; 4096])
+            .unwrap_err();
+        assert_eq!(full.kind(), std::io::ErrorKind::StorageFull);
+        let blob = |e: std::io::Error| {
+            ApiError::from(crate::store::BlobError(object_store::Error::Generic {
+                store: "LocalFileSystem",
+                source: Box::new(e),
+            }))
+        };
+        let same = || std::io::Error::from_raw_os_error(full.raw_os_error().unwrap());
+        assert_eq!(ApiError::io(same()).code, ErrorCode::InsufficientStorage);
+        assert_eq!(blob(same()).code, ErrorCode::InsufficientStorage);
+        assert_eq!(blob(same()).status().as_u16(), 507);
+        let denied = || std::io::Error::from(std::io::ErrorKind::PermissionDenied);
+        assert_eq!(ApiError::io(denied()).code, ErrorCode::Internal);
+        assert_eq!(blob(denied()).code, ErrorCode::Unavailable);
     }
 }

@@ -115,6 +115,12 @@ error_codes! {
     /// timeout, or under the minimum rate once that much time has
     /// passed): slow-body protection.
     BodyTooSlow = "body_too_slow", 408;
+    /// 507: the upload or job would take this API key's stored bytes
+    /// (trees and job outputs) over `--max-stored-mb-per-key`; delete
+    /// trees or jobs to make room.
+    QuotaExceeded = "quota_exceeded", 507;
+    /// 507: the server's storage is full; nothing was stored.
+    InsufficientStorage = "insufficient_storage", 507;
 }
 
 impl ErrorCode {

@@ -617,6 +617,17 @@ pub async fn finish(
     Ok(row)
 }
 
+/// Records the bytes a job's outputs take (per-key storage quota). Leaves
+/// `updated_at` alone: expiry counts from the job's end.
+pub async fn record_stored_bytes(db: &Db, id: &str, bytes: u64) -> Result<(), sqlx::Error> {
+    sqlx::query("UPDATE jobs SET stored_bytes = $2 WHERE id = $1")
+        .bind(id)
+        .bind(i64::try_from(bytes).unwrap_or(i64::MAX))
+        .execute(&db.writer)
+        .await?;
+    Ok(())
+}
+
 /// How a job ended.
 #[derive(Clone, Debug)]
 pub enum End {

@@ -241,6 +241,21 @@ async fn delete_superseded(blobs: &crate::store::Blobs, id: &str, token: &str) {
     }
 }
 
+/// Records what the ended attempt's outputs take in the blob store, for
+/// the per-key quota; a failure only leaves the job counted as 0 bytes.
+async fn record_usage(services: &Services, id: &str, token: &str) {
+    let prefix = queue::attempt_prefix(id, token);
+    let recorded = match services.blobs.usage(&prefix).await {
+        Ok((_, bytes)) => queue::record_stored_bytes(&services.db, id, bytes)
+            .await
+            .map_err(anyhow::Error::from),
+        Err(e) => Err(e.into()),
+    };
+    if let Err(e) = recorded {
+        tracing::warn!(job = %id, error = %e, "could not record the job's stored bytes");
+    }
+}
+
 async fn watch_lease(services: Services, id: String, token: String, flags: Arc<Flags>) {
     let lease = services.settings.lease();
     let lease_ms = lease.as_millis() as i64;
@@ -497,6 +512,7 @@ async fn settle(
     match queue::finish(db, id, token, end).await {
         Ok(Some(row)) => {
             tracing::info!(job = %id, status = row.status.as_str(), "job ended");
+            record_usage(services, id, token).await;
             if row.callback_url.is_some() {
                 services.hub.webhooks.notify_one();
             }

@@ -119,6 +119,7 @@ fn accepted(row: &JobRow) -> Response {
         (status = 413, description = "Body too large (`payload_too_large`)", body = treemorph_api::ErrorBody),
         (status = 415, description = "Not `application/json` (`unsupported_media_type`)", body = treemorph_api::ErrorBody),
         (status = 422, description = "Invalid request (`invalid_request`, `idempotency_key_reused`, `callback_url_refused`, `invalid_job`, `invalid_sketch`, `incompatible_trees`)", body = treemorph_api::ErrorBody),
+        (status = 507, description = "The API key is at its storage quota (`quota_exceeded`), or the server's storage is full (`insufficient_storage`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn post(
@@ -156,6 +157,7 @@ pub async fn post(
     if let Some(replayed) = queue::replay(db, &owner.0, key.as_deref(), &hash).await? {
         return created(replayed, &state);
     }
+    super::quota::check(&state, &owner, 0).await?;
     let queued = queue::queued_count(db).await?;
     if queued >= settings.max_queued as i64 {
         return Err(ApiError::new(

@@ -33,6 +33,7 @@ pub mod extract;
 pub mod health;
 pub mod jobs;
 pub mod openapi;
+pub mod quota;
 pub mod slow_body;
 pub mod stream;
 pub mod trees;

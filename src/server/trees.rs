@@ -194,10 +194,20 @@ async fn store(
     format: &str,
     prepared: Prepared,
 ) -> Result<Response, ApiError> {
+    let json_bytes = prepared.tree_json.len() as u64;
+    let stored_bytes = [
+        &prepared.original,
+        &prepared.tree_json,
+        &prepared.analysis_json,
+        &prepared.glb,
+    ]
+    .map(|b| b.len() as u64)
+    .iter()
+    .sum::<u64>();
+    super::quota::check(state, owner, stored_bytes).await?;
     let id = new_id();
     let prefix = blob_prefix(&id);
     let blobs = &state.services.blobs;
-    let json_bytes = prepared.tree_json.len() as u64;
     // Four files written side by side, then made durable together before
     // the row that acknowledges the upload is committed.
     let keys =
@@ -216,6 +226,7 @@ async fn store(
         format: format.to_owned(),
         stats: prepared.stats,
         created_at: now_ms(),
+        stored_bytes: i64::try_from(stored_bytes).unwrap_or(i64::MAX),
     };
     state.services.db.insert_tree(&row).await?;
     state.services.trees.insert(&id, prepared.input, json_bytes);
@@ -252,6 +263,7 @@ async fn store(
         (status = 413, description = "Larger than the upload limit (`payload_too_large`)", body = treemorph_api::ErrorBody),
         (status = 415, description = "Not one of the accepted media types (`unsupported_media_type`)", body = treemorph_api::ErrorBody),
         (status = 422, description = "Not a valid tree (`invalid_tree`, `invalid_gltf`) or bad query (`invalid_request`)", body = treemorph_api::ErrorBody),
+        (status = 507, description = "The upload would take the API key over its storage quota (`quota_exceeded`), or the server's storage is full (`insufficient_storage`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn post(
@@ -383,8 +395,8 @@ async fn spool(
         return Err(too_large());
     }
     let tmp = tempfile::NamedTempFile::new_in(state.settings().data_dir.join("tmp"))
-        .map_err(ApiError::internal)?;
-    let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(ApiError::internal)?);
+        .map_err(ApiError::io)?;
+    let mut file = tokio::fs::File::from_std(tmp.reopen().map_err(ApiError::io)?);
     let mut stream = body.into_data_stream();
     let mut total = 0u64;
     while let Some(chunk) = stream.next().await {
@@ -396,9 +408,9 @@ async fn spool(
         if total > limit {
             return Err(too_large());
         }
-        file.write_all(&chunk).await.map_err(ApiError::internal)?;
+        file.write_all(&chunk).await.map_err(ApiError::io)?;
     }
-    file.flush().await.map_err(ApiError::internal)?;
+    file.flush().await.map_err(ApiError::io)?;
     if total == 0 {
         return Err(ApiError::new(
             invalid_code_for(headers),
@@ -456,6 +468,7 @@ fn invalid_code_for(headers: &HeaderMap) -> ErrorCode {
         (status = 413, description = "Body too large (`payload_too_large`)", body = treemorph_api::ErrorBody),
         (status = 415, description = "Not `application/json` (`unsupported_media_type`)", body = treemorph_api::ErrorBody),
         (status = 422, description = "Unknown preset, bad size or unknown field (`invalid_request`)", body = treemorph_api::ErrorBody),
+        (status = 507, description = "The tree would take the API key over its storage quota (`quota_exceeded`), or the server's storage is full (`insufficient_storage`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn generate(

@@ -355,6 +355,13 @@ mod tests {
         let mut kids = blobs.children("jobs/a").await.unwrap();
         kids.sort();
         assert_eq!(kids, ["t1", "t2"]);
+        assert_eq!(blobs.usage("jobs/a").await.unwrap(), (2, 10));
+        let newest = blobs.last_modified("jobs/a").await.unwrap().unwrap();
+        assert!(
+            (newest - crate::store::now_ms()).abs() < 600_000,
+            "{newest}"
+        );
+        assert_eq!(blobs.last_modified("jobs/none").await.unwrap(), None);
         let mut s = blobs.stream("jobs/a/t1/x", Some(1..4)).await.unwrap();
         assert_eq!(s.next().await.unwrap().unwrap(), "ell");
         blobs.delete_prefix("jobs/a/t1").await.unwrap();
@@ -502,12 +509,23 @@ mod tests {
         let mut kids = blobs.children("jobs/a").await.unwrap();
         kids.sort();
         assert_eq!(kids, ["t1", "t2"]);
+        assert_eq!(
+            blobs.usage("jobs/a").await.unwrap(),
+            (2, 12 * 1024 * 1024 + 5)
+        );
+        let newest = blobs.last_modified("jobs/a").await.unwrap().unwrap();
+        assert!(
+            (newest - crate::store::now_ms()).abs() < 600_000,
+            "{newest}"
+        );
+        assert_eq!(blobs.last_modified("jobs/none").await.unwrap(), None);
         let mut s = blobs.stream("jobs/a/t2/y", Some(1..4)).await.unwrap();
         assert_eq!(s.next().await.unwrap().unwrap(), "orl");
         blobs.delete_prefix("jobs/a/t1").await.unwrap();
         assert_eq!(blobs.get("jobs/a/t1/big").await.unwrap(), None);
         blobs.delete_prefix("jobs").await.unwrap();
         assert!(blobs.children("jobs").await.unwrap().is_empty());
+        assert_eq!(blobs.usage("jobs").await.unwrap(), (0, 0));
     }
 
     #[test]

@@ -22,6 +22,8 @@ pub struct TreeRow {
     pub stats: TreeStats,
     /// Creation time, ms.
     pub created_at: i64,
+    /// Bytes of its blobs (per-key storage quota).
+    pub stored_bytes: i64,
 }
 
 impl TreeRow {
@@ -34,6 +36,7 @@ impl TreeRow {
             format: row.try_get("format")?,
             stats: serde_json::from_str(&stats).map_err(|e| sqlx::Error::Decode(e.into()))?,
             created_at: row.try_get("created_at")?,
+            stored_bytes: row.try_get("stored_bytes")?,
         })
     }
 
@@ -58,7 +61,8 @@ impl Db {
     /// Inserts a tree row (after its blobs were written).
     pub async fn insert_tree(&self, tree: &TreeRow) -> Result<(), sqlx::Error> {
         sqlx::query(
-            "INSERT INTO trees (id, owner, name, format, stats, created_at) VALUES ($1, $2, $3, $4, $5, $6)",
+            "INSERT INTO trees (id, owner, name, format, stats, created_at, stored_bytes) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7)",
         )
         .bind(&tree.id)
         .bind(&tree.owner)
@@ -66,9 +70,22 @@ impl Db {
         .bind(&tree.format)
         .bind(serde_json::to_string(&tree.stats).expect("stats serialise"))
         .bind(tree.created_at)
+        .bind(tree.stored_bytes)
         .execute(&self.writer)
         .await?;
         Ok(())
+    }
+
+    /// Bytes `owner` stores: its trees' blobs and its jobs' outputs.
+    pub async fn stored_bytes(&self, owner: &str) -> Result<i64, sqlx::Error> {
+        let row = sqlx::query(
+            "SELECT CAST((SELECT COALESCE(SUM(stored_bytes), 0) FROM trees WHERE owner = $1) \
+                  + (SELECT COALESCE(SUM(stored_bytes), 0) FROM jobs WHERE owner = $1) AS BIGINT) AS total",
+        )
+        .bind(owner)
+        .fetch_one(&self.pool)
+        .await?;
+        row.try_get("total")
     }
 
     /// The tree `id` of `owner`.

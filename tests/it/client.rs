@@ -535,6 +535,15 @@ fn client_with_api_keys_cancels_and_watches_live_jobs() {
     server
         .client_with(&["download", &long, "-o", s(&server.path("late"))], &one)
         .expect(FAILED);
+    // Deleting: another key's job is not found; then the job is gone.
+    server
+        .client_with(&["delete", &long], &[("TREEMORPH_API_KEY", "key-two")])
+        .expect(NOT_FOUND);
+    let deleted = server.client_with(&["delete", &long], &one).expect(OK);
+    assert_eq!(deleted.stdout.trim(), "deleted", "{deleted:#?}");
+    server
+        .client_with(&["status", &long], &one)
+        .expect(NOT_FOUND);
 
     // Progress followed live: plain lines on a non-terminal stderr.
     let out = server.path("live");

@@ -363,6 +363,53 @@ async fn get_bytes(client: &reqwest::Client, url: &str) -> (u16, bytes::Bytes) {
     (status, r.bytes().await.unwrap_or_default())
 }
 
+/// Jobs deleted at the end of the fleet test: `DELETE` on ended jobs
+/// through alternating API processes.
+const DELETES: usize = 40;
+
+/// Deletes [`DELETES`] ended jobs and checks that each answers 404 after
+/// and that exactly their objects left the blob store (S3): the store's
+/// object count under `jobs/` drops by what their prefixes held. Returns
+/// how many were deleted.
+async fn delete_some(
+    client: &reqwest::Client,
+    api_urls: &[String],
+    blobs: &treemorph::store::Blobs,
+    rows: &[FinalRow],
+    problems: &mut Vec<String>,
+) -> usize {
+    let before = blobs.usage("jobs").await.unwrap();
+    let mut held = (0, 0);
+    for (i, (id, ..)) in rows.iter().take(DELETES).enumerate() {
+        let (n, bytes) = blobs.usage(&format!("jobs/{id}")).await.unwrap();
+        held = (held.0 + n, held.1 + bytes);
+        let base = &api_urls[i % api_urls.len()];
+        let r = client
+            .delete(format!("{base}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap();
+        if r.status() != 204 {
+            problems.push(format!("DELETE of ended job {id} answered {}", r.status()));
+        }
+        let r = client
+            .get(format!("{base}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap();
+        if r.status() != 404 {
+            problems.push(format!("deleted job {id} answered {}", r.status()));
+        }
+    }
+    let after = blobs.usage("jobs").await.unwrap();
+    if after != (before.0 - held.0, before.1 - held.1) {
+        problems.push(format!(
+            "deleting {DELETES} jobs holding {held:?} (objects, bytes) took the store from {before:?} to {after:?}"
+        ));
+    }
+    DELETES.min(rows.len())
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs TREEMORPH_TEST_POSTGRES_URL, TREEMORPH_TEST_S3_URL and an S3 server"]
 async fn a_fleet_of_processes_survives_kill_9() {
@@ -719,13 +766,15 @@ async fn a_fleet_of_processes_survives_kill_9() {
         }
     }
 
+    let deleted = delete_some(&client, &api_urls, &blobs, &rows, &mut problems).await;
+
     stop(apis).await;
     let attempts: i64 = rows.iter().map(|r| r.4).sum();
     eprintln!(
         "fleet: {JOBS} jobs {by_status:?} in {:.1}s; {} runs ({attempts} attempts), {killed_runs} \
          cut short by {KILLS} kills, {stopped_runs} stopped (cancelled or lease lost); outputs of \
          {checked} jobs checked; {complete_streams} complete live streams, {frames_sampled} live \
-         frames; {leftovers} superseded output prefixes left",
+         frames; {leftovers} superseded output prefixes left; {deleted} jobs deleted",
         finished_after.as_secs_f64(),
         runs.len(),
     );

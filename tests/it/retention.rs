@@ -194,3 +194,103 @@ async fn blobs_without_a_row_are_swept_once_old() {
     assert_eq!(s, 200, "a job with a row lost its outputs");
     app.stop().await;
 }
+
+fn bytes_of(paths: &[PathBuf]) -> u64 {
+    paths
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .sum()
+}
+
+/// The per-key quota counts the blobs a key's trees and jobs store (the
+/// bytes on disk), refuses the upload that would exceed it and a job
+/// while the key is at it (507 `quota_exceeded`), and deleting makes room.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_storage_quota_counts_stored_bytes_and_deleting_makes_room() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.max_stored_mb_per_key = 1;
+    })
+    .await;
+    let db = &app.state.services.db;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let job = finished_job(&app, &a, &b).await;
+    let on_disk = bytes_of(&blob_files(&app));
+    assert_eq!(
+        db.stored_bytes("anonymous").await.unwrap() as u64,
+        on_disk,
+        "the count is not what is stored"
+    );
+
+    // Fill up: trees until one would exceed the quota.
+    let mut trees = vec![a, b];
+    let refused = loop {
+        let (status, body) = app
+            .post_json(
+                "/v1/trees/generate",
+                &json!({"preset": "maple", "seed": trees.len(), "size": 120}),
+            )
+            .await;
+        match status {
+            201 => trees.push(body["id"].as_str().unwrap().to_owned()),
+            _ => break (status, body),
+        }
+        assert!(trees.len() < 500, "the quota never bit");
+    };
+    assert_eq!(
+        (refused.0, error_code(&refused.1)),
+        (507, "quota_exceeded"),
+        "{}",
+        refused.1
+    );
+    let stored = db.stored_bytes("anonymous").await.unwrap() as u64;
+    assert!(
+        stored <= 1024 * 1024,
+        "{stored} bytes stored under a 1 MiB quota"
+    );
+    assert_eq!(stored, bytes_of(&blob_files(&app)));
+
+    // Deleting a job and a tree makes room again.
+    assert_eq!(app.delete(&format!("/v1/jobs/{job}")).await.0, 204);
+    assert_eq!(
+        app.delete(&format!("/v1/trees/{}", trees.pop().unwrap()))
+            .await
+            .0,
+        204
+    );
+    assert_eq!(
+        db.stored_bytes("anonymous").await.unwrap() as u64,
+        bytes_of(&blob_files(&app))
+    );
+    let (status, body) = app
+        .post_json(
+            "/v1/trees/generate",
+            &json!({"preset": "maple", "seed": 1000, "size": 120}),
+        )
+        .await;
+    assert_eq!(status, 201, "{body}");
+    app.stop().await;
+}
+
+/// A job is refused while the key is at its quota: its outputs cannot be
+/// known before it runs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_is_refused_while_the_key_is_at_its_quota() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |s| {
+        s.max_stored_mb_per_key = 1;
+    })
+    .await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    // Jobs until the key is at its quota (each stores its outputs).
+    for _ in 0..200 {
+        let (status, body) = app.morph(&a, &b, 40).await;
+        if status == 507 {
+            assert_eq!(error_code(&body), "quota_exceeded", "{body}");
+            app.stop().await;
+            return;
+        }
+        assert_eq!(status, 202, "{body}");
+        app.wait_status(body["id"].as_str().unwrap(), "succeeded")
+            .await;
+    }
+    panic!("jobs were never refused");
+}

@@ -80,6 +80,26 @@ async fn run(api: TestApp, worker: TestApp) {
     api.delete(&format!("/v1/jobs/{long}")).await;
     let end = api.wait_status(&long, "cancelled").await;
     assert!(end["frames_ready"].as_u64().unwrap() < 500);
+    // Deleting an ended job removes its blobs from the shared store.
+    let blobs = &api.state.services.blobs;
+    for job in [&id, &long] {
+        let prefix = format!("jobs/{job}");
+        assert_ne!(
+            blobs.usage(&prefix).await.unwrap().0,
+            0,
+            "{job} stored nothing"
+        );
+        assert_eq!(api.delete(&format!("/v1/jobs/{job}")).await.0, 204);
+        assert_eq!(
+            blobs.usage(&prefix).await.unwrap(),
+            (0, 0),
+            "{job} left blobs"
+        );
+        assert_eq!(
+            worker.state.services.blobs.usage(&prefix).await.unwrap(),
+            (0, 0)
+        );
+    }
     worker.stop().await;
     api.stop().await;
 }

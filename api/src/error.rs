@@ -62,7 +62,7 @@ error_codes! {
     TreeNotFound = "tree_not_found", 404;
     /// 405: the route exists but not with this method.
     MethodNotAllowed = "method_not_allowed", 405;
-    /// 409: the tree is used by a queued or running job.
+    /// 409: the tree is used by a job that still exists.
     TreeInUse = "tree_in_use", 409;
     /// 409: the job has already succeeded or failed and cannot be cancelled.
     JobFinished = "job_finished", 409;
@@ -119,6 +119,9 @@ error_codes! {
     /// (trees and job outputs) over `--max-stored-mb-per-key`; delete
     /// trees or jobs to make room.
     QuotaExceeded = "quota_exceeded", 507;
+    /// 410: the job's stored plan (or an input it renders from) is from an
+    /// older version or gone; run the job again to render new instants.
+    PlanOutdated = "plan_outdated", 410;
     /// 507: the server's storage is full; nothing was stored.
     InsufficientStorage = "insufficient_storage", 507;
 }

@@ -479,6 +479,11 @@ pub struct JobLinks {
     /// (absent when not requested).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frames: Option<String>,
+    /// URL template of the frame at any instant, rendered on request:
+    /// replace `{t}` by a number in [0, 1] (absent from servers older than
+    /// this field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_at: Option<String>,
 }
 
 /// A finished job's result.

@@ -4,6 +4,9 @@
 //! `DIR/frame_NNNN.glb` (one per frame), `DIR/animation.glb` (morph
 //! targets), `DIR/frames.tmd` (the binary delta stream) and
 //! `DIR/metrics.json`; `--format` picks which of the first three.
+//! `--at T` writes only the frame at instant `T` in [0, 1],
+//! `DIR/frame_at_T.glb` (`T` with four decimals): at `T = i / (frames −
+//! 1)` the same bytes as `frame_NNNN.glb` of frame `i`.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -33,6 +36,10 @@ pub struct Common {
     /// What to write (repeatable or comma-separated; default all).
     #[arg(long, value_enum, value_delimiter = ',')]
     format: Vec<Format>,
+    /// Write only the frame at this instant in [0, 1], as
+    /// `DIR/frame_at_T.glb`.
+    #[arg(long, value_name = "T")]
+    at: Option<f32>,
 }
 
 /// Arguments of `treemorph morph`.
@@ -150,15 +157,18 @@ fn run_job(
         .map_err(job_failure)?;
     std::fs::create_dir_all(&common.output)
         .with_context(|| format!("creating {}", common.output.display()))?;
+    let input = JobInput {
+        spec: &spec,
+        trees: &trees,
+    };
+    if let Some(t) = common.at {
+        return write_instant(runner.as_ref(), &input, t, &common.output);
+    }
     let bar = progress::bar(u64::from(common.frames), stage::LOADING);
     let mut sink = DirSink {
         dir: common.output.clone(),
         bar: bar.clone(),
         frames: common.frames,
-    };
-    let input = JobInput {
-        spec: &spec,
-        trees: &trees,
     };
     let outcome = runner.run(&input, &mut sink).map_err(job_failure)?;
     bar.finish_and_clear();
@@ -169,6 +179,20 @@ fn run_job(
         outcome.files.join(", "),
         outcome.metrics
     );
+    Ok(())
+}
+
+/// `--at T`: the one frame at instant `t`.
+fn write_instant(
+    runner: &dyn crate::pipeline::Runner,
+    input: &JobInput<'_>,
+    t: f32,
+    dir: &Path,
+) -> Result<(), Failure> {
+    let glb = runner.frame_at(input, t).map_err(job_failure)?;
+    let path = dir.join(format!("frame_at_{t:.4}.glb"));
+    write_atomic(&path, &glb).with_context(|| format!("writing {}", path.display()))?;
+    println!("{}", path.display());
     Ok(())
 }
 

@@ -9,6 +9,7 @@
 //! treemorph client status JOB
 //! treemorph client watch JOB                           (progress from SSE)
 //! treemorph client download JOB [--format …] -o DIR
+//! treemorph client download JOB --t 0.5 -o DIR         (the frame at an instant)
 //! treemorph client cancel JOB
 //! treemorph client delete JOB                          (cancels first if it runs)
 //! ```
@@ -246,6 +247,10 @@ struct DownloadArgs {
     /// Wait for the job to end first.
     #[arg(long)]
     wait: bool,
+    /// Download only the frame at this instant in [0, 1], rendered by the
+    /// server on request, as `DIR/frame_at_T.glb`.
+    #[arg(long = "t", value_name = "T", conflicts_with = "format")]
+    t: Option<f32>,
 }
 
 /// Runs `treemorph client`.
@@ -302,7 +307,10 @@ async fn run_async(args: &Args) -> Result<(), Failure> {
             } else {
                 get_job(&api, &a.job).await?.0
             };
-            let files = download::download(&api, &info, &a.output, &a.format).await?;
+            let files = match a.t {
+                Some(t) => vec![download::download_instant(&api, &info, &a.output, t).await?],
+                None => download::download(&api, &info, &a.output, &a.format).await?,
+            };
             let mut out = std::io::stdout().lock();
             for f in &files {
                 writeln!(out, "{}", f.display()).context("writing to stdout")?;

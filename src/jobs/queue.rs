@@ -190,6 +190,7 @@ impl JobRow {
                         frames: r
                             .frame_glbs
                             .then(|| format!("/v1/jobs/{id}/frames/{{n}}.glb")),
+                        frame_at: Some(format!("/v1/jobs/{id}/frame.glb?t={{t}}")),
                     },
                 }),
                 _ => None,

@@ -246,7 +246,20 @@ fn internal(e: impl std::fmt::Display) -> JobError {
     JobError::internal(e)
 }
 
+/// The fake GLB the test runner renders at instant `t`: the magic and the
+/// bits of `t`.
+pub fn instant_glb(t: f32) -> Vec<u8> {
+    let mut v = b"glTF".to_vec();
+    v.extend_from_slice(&t.to_bits().to_le_bytes());
+    v.extend_from_slice(b"instant");
+    v
+}
+
 impl Runner for TestRunner {
+    fn frame_at(&self, _input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
+        Ok(instant_glb(crate::pipeline::check_instant(t)?))
+    }
+
     fn check(&self, request: &JobRequest, limits: &Limits) -> Result<JobSpec, JobError> {
         // The same conversion as production, so tests of the HTTP layer see
         // the same refusals.

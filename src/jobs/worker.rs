@@ -285,7 +285,8 @@ async fn watch_lease(services: Services, id: String, token: String, flags: Arc<F
     }
 }
 
-async fn load_trees(
+/// A job's input trees, from the tree cache or the blob store.
+pub(crate) async fn load_trees(
     services: &Services,
     spec: &JobSpec,
 ) -> Result<HashMap<String, Arc<InputTree>>, JobError> {
@@ -353,7 +354,8 @@ async fn load_tree(services: &Services, id: &str) -> Result<Arc<InputTree>, JobE
 /// The frame cap is an admission rule of the process that accepted the
 /// job: a worker started with a lower `--max-frames` still runs what was
 /// accepted, so it checks everything but that cap.
-fn claimed_spec(services: &Services, row: &JobRow) -> Result<JobSpec, JobError> {
+/// The spec of a stored job, converted again from its stored request.
+pub(crate) fn claimed_spec(services: &Services, row: &JobRow) -> Result<JobSpec, JobError> {
     let request: JobRequest = serde_json::from_str(&row.request)
         .map_err(|e| JobError::internal(format_args!("stored request is unreadable: {e}")))?;
     services.runner.check(

@@ -56,6 +56,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .routes(routes!(get, delete))
         .routes(routes!(cancel))
         .routes(routes!(frame))
+        .routes(routes!(frame_at))
         .routes(routes!(animation))
         .routes(routes!(metrics))
 }
@@ -357,6 +358,107 @@ async fn cancel_queued_or_running(
         Cancel::AlreadyCancelled(row) | Cancel::Finished(row) => Ok(Err(row)),
         Cancel::NotFound => Err(ApiError::not_found("job")),
     }
+}
+
+/// Query of `GET /v1/jobs/{id}/frame.glb`.
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub struct InstantQuery {
+    /// The instant, in [0, 1] (0 is the first frame, 1 the last).
+    #[param(minimum = 0.0, maximum = 1.0)]
+    pub t: f32,
+}
+
+/// Get the frame at any instant as GLB.
+///
+/// Rendered on request, for a job that succeeded: the job is planned
+/// again from its stored request and trees (plans are deterministic), so
+/// at `t = i / (frames − 1)` the bytes are those of `frames/{i}.glb`, and
+/// any instant between renders too. The ETag names the job's attempt and
+/// the instant (a render is a deterministic function of both), so a
+/// cached copy is revalidated without rendering.
+#[utoipa::path(
+    get,
+    path = "/v1/jobs/{id}/frame.glb",
+    operation_id = "get_job_frame_at",
+    tag = "jobs",
+    params(
+        ("id" = String, Path, description = "Job id"),
+        InstantQuery,
+        ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy"),
+    ),
+    responses(
+        (status = 200, description = "The frame at `t`", content_type = "model/gltf-binary", body = [u8],
+            headers(("ETag" = String, description = "Strong entity tag"))),
+        (status = 304, description = "Not modified"),
+        (status = 404, description = "No such job, or it failed or was cancelled (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "The job has not succeeded yet (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 410, description = "The job can no longer render new instants (`plan_outdated`); run it again", body = treemorph_api::ErrorBody),
+        (status = 422, description = "`t` is missing or not a number in [0, 1] (`invalid_request`)", body = treemorph_api::ErrorBody),
+    )
+)]
+pub async fn frame_at(
+    State(state): State<AppState>,
+    owner: Owner,
+    Path(id): Path<String>,
+    ApiQuery(query): ApiQuery<InstantQuery>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let t = crate::pipeline::check_instant(query.t)?;
+    let row = find(&state, &owner, &id).await?;
+    let prefix = match (&row.status, row.published_prefix()) {
+        (JobStatus::Succeeded, Some(prefix)) => prefix,
+        _ => return Err(not_available(&row, "frame")),
+    };
+    let etag = blob::etag_for(&format!("{prefix}/at/{:08x}", t.to_bits()));
+    let cached = [
+        (header::ETAG, etag.clone()),
+        (
+            header::CACHE_CONTROL,
+            "private, max-age=31536000, immutable".to_owned(),
+        ),
+    ];
+    if super::extract::not_modified(&headers, &etag) {
+        return Ok((StatusCode::NOT_MODIFIED, cached).into_response());
+    }
+    let glb = render_at(&state, &row, t).await?;
+    let typed = [(header::CONTENT_TYPE, "model/gltf-binary".to_owned())];
+    Ok((StatusCode::OK, cached, typed, glb).into_response())
+}
+
+/// Renders `row`'s frame at `t` on the blocking pool (never in a worker
+/// slot: a render does not hold up the job queue).
+async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
+    let services = &state.services;
+    let gone = |e: crate::pipeline::JobError| {
+        ApiError::new(
+            ErrorCode::PlanOutdated,
+            format!(
+                "this job can no longer render new instants ({}); post the same request again to re-run it",
+                e.message
+            ),
+        )
+    };
+    let spec = crate::jobs::worker::claimed_spec(services, row).map_err(gone)?;
+    let trees = crate::jobs::worker::load_trees(services, &spec)
+        .await
+        .map_err(|e| match e.code {
+            ErrorCode::TreeNotFound => gone(e),
+            ErrorCode::Unavailable => ApiError::unavailable(e.message),
+            _ => ApiError::from(e),
+        })?;
+    let runner = services.runner.clone();
+    let rendered = tokio::task::spawn_blocking(move || {
+        let input = crate::pipeline::JobInput {
+            spec: &spec,
+            trees: &trees,
+        };
+        runner.frame_at(&input, t)
+    })
+    .await
+    .map_err(ApiError::internal)?;
+    Ok(rendered?)
 }
 
 /// 409 `not_ready` while the job may still produce it, 404 otherwise.

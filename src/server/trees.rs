@@ -694,7 +694,7 @@ pub async fn analysis(
     responses(
         (status = 204, description = "Deleted"),
         (status = 404, description = "No such tree (`not_found`)", body = treemorph_api::ErrorBody),
-        (status = 409, description = "A queued or running job uses the tree (`tree_in_use`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "A job that still exists uses the tree (`tree_in_use`); delete the job first", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn delete(
@@ -713,7 +713,7 @@ pub async fn delete(
         }
         DeleteTree::InUse => Err(ApiError::new(
             ErrorCode::TreeInUse,
-            "a queued or running job uses this tree",
+            "a job uses this tree (its frames at new instants are rendered from it); delete the job first, or wait for it to expire",
         )),
         DeleteTree::NotFound => Err(ApiError::not_found("tree")),
     }

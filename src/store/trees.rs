@@ -134,12 +134,13 @@ impl Db {
         rows.iter().map(TreeRow::from_row).collect()
     }
 
-    /// Deletes a tree unless a queued or running job uses it — in one
-    /// statement, so a job cannot slip in between the check and the delete.
+    /// Deletes a tree unless a job that still exists uses it (a job renders
+    /// frames at new instants from its trees) — in one statement, so a job
+    /// cannot slip in between the check and the delete.
     pub async fn delete_tree(&self, owner: &str, id: &str) -> Result<DeleteTree, sqlx::Error> {
         let deleted = sqlx::query(
             "DELETE FROM trees WHERE id = $1 AND owner = $2 AND NOT EXISTS (\
-               SELECT 1 FROM jobs WHERE (tree_a = $1 OR tree_b = $1) AND status IN ('queued', 'running'))",
+               SELECT 1 FROM jobs WHERE tree_a = $1 OR tree_b = $1)",
         )
         .bind(id)
         .bind(owner)
@@ -161,7 +162,7 @@ impl Db {
 pub enum DeleteTree {
     /// The row is gone (its blobs may be deleted now).
     Deleted,
-    /// A queued or running job uses the tree.
+    /// A job that still exists uses the tree.
     InUse,
     /// No such tree for this owner.
     NotFound,

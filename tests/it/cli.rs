@@ -136,3 +136,46 @@ fn morph_writes_frames_animation_stream_and_metrics() {
     let (_, decoded) = treemorph_api::delta::decode_all(&stream, &Default::default()).unwrap();
     assert_eq!(decoded.len(), 4);
 }
+
+/// `--at T` writes the one frame at `T`: at a frame's instant, that
+/// frame's bytes; `T` outside [0, 1] is a usage error.
+#[test]
+fn morph_at_an_instant_writes_that_frame_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = generate(dir.path(), "maple", "1", "120");
+    let b = generate(dir.path(), "shrub", "2", "120");
+    let all = dir.path().join("all");
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "morph",
+            &a,
+            &b,
+            "--frames",
+            "5",
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        treemorph(&args)
+    };
+    assert!(run(&all, &["--format", "glb"]).status.success());
+    let one = dir.path().join("one");
+    let out = run(&one, &["--at", "0.75"]);
+    assert!(out.status.success(), "{out:?}");
+    let written = one.join("frame_at_0.7500.glb");
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        written.to_str().unwrap()
+    );
+    assert_eq!(std::fs::read_dir(&one).unwrap().count(), 1);
+    assert_eq!(
+        std::fs::read(&written).unwrap(),
+        std::fs::read(all.join("frame_0003.glb")).unwrap()
+    );
+    let out = run(&one, &["--at", "1.5"]);
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("t must be a number in [0, 1]"),
+        "{out:?}"
+    );
+}

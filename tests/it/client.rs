@@ -331,6 +331,22 @@ fn client_generates_uploads_morphs_sketches_and_downloads() {
         std::fs::read(animated.join("animation.glb")).unwrap(),
         std::fs::read(out.join("animation.glb")).unwrap()
     );
+    // The frame at an instant, rendered by the server (the test runner's
+    // stand-in GLB names its instant).
+    let at = server.path("at");
+    let dl = server
+        .client(&["download", &job, "--t", "1", "-o", s(&at)])
+        .expect(OK);
+    assert_eq!(files_in(&at), ["frame_at_1.0000.glb"]);
+    assert_eq!(dl.stdout.trim(), s(&at.join("frame_at_1.0000.glb")));
+    assert_eq!(
+        std::fs::read(at.join("frame_at_1.0000.glb")).unwrap(),
+        treemorph::jobs::testing::instant_glb(1.0)
+    );
+    let bad = server
+        .client(&["download", &job, "--t", "2", "-o", s(&at)])
+        .expect(INVALID_INPUT);
+    assert!(bad.stderr.contains("invalid_request"), "{bad:#?}");
 
     // A job without per-frame GLBs: asking for them is "not found", while
     // `all` takes what there is.

@@ -64,6 +64,27 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
         .await
         .unwrap();
     assert_eq!(&glb[..4], b"glTF");
+    // Any instant renders on request; at a frame's instant, its bytes.
+    let frame_4 = app
+        .get(&format!("/v1/jobs/{id}/frames/4.glb"))
+        .await
+        .bytes()
+        .await
+        .unwrap();
+    let at = app
+        .get(&format!("/v1/jobs/{id}/frame.glb?t={}", 4.0f32 / 9.0))
+        .await;
+    assert_eq!(at.status(), 200);
+    assert_eq!(
+        at.bytes().await.unwrap(),
+        frame_4,
+        "the instant of frame 4 is not frame 4"
+    );
+    let between = app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.375")).await;
+    assert_eq!(between.status(), 200);
+    let between = between.bytes().await.unwrap();
+    assert_eq!(&between[..4], b"glTF");
+    assert_ne!(between, frame_4);
 
     let (s, job) = app
         .post_json("/v1/jobs", &json!({

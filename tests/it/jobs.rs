@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde_json::{Value, json};
-use treemorph::jobs::testing::{TestBehaviour, TestRunner, frame_glb};
+use treemorph::jobs::testing::{TestBehaviour, TestRunner, frame_glb, instant_glb};
 use treemorph_api::ErrorCode;
 
 use crate::common::{error_code, spawn, spawn_with};
@@ -531,5 +531,64 @@ async fn metrics_and_health_report() {
     ] {
         assert!(text.contains(needle), "{needle} missing:\n{text}");
     }
+    app.stop().await;
+}
+
+/// `GET /v1/jobs/{id}/frame.glb?t=`: the frame at any instant of a job
+/// that succeeded, with an ETag that revalidates without rendering; bad
+/// instants are 422, unfinished jobs 409, deleted ones 404.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_render_at_any_instant_on_request() {
+    let app = spawn_with(
+        Arc::new(TestRunner::slow(Duration::from_millis(30))),
+        |_| {},
+    )
+    .await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 5).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    let (s, e) = app
+        .get_json(&format!("/v1/jobs/{id}/frame.glb?t=0.5"))
+        .await;
+    assert_eq!((s, error_code(&e)), (409, "not_ready"));
+    app.wait_status(&id, "succeeded").await;
+
+    let r = app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.375")).await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["content-type"], "model/gltf-binary");
+    let etag = r.headers()["etag"].to_str().unwrap().to_owned();
+    assert_eq!(r.bytes().await.unwrap(), instant_glb(0.375));
+    let again = app
+        .client
+        .get(app.url(&format!("/v1/jobs/{id}/frame.glb?t=0.375")))
+        .header("if-none-match", &etag)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(again.status(), 304);
+    let other = app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.5")).await;
+    assert_ne!(other.headers()["etag"].to_str().unwrap(), etag);
+
+    for bad in [
+        "",
+        "?t=",
+        "?t=1.5",
+        "?t=-0.1",
+        "?t=abc",
+        "?t=NaN",
+        "?t=0.5&x=1",
+    ] {
+        let (s, e) = app.get_json(&format!("/v1/jobs/{id}/frame.glb{bad}")).await;
+        assert_eq!((s, error_code(&e)), (422, "invalid_request"), "{bad}: {e}");
+    }
+    let (s, e) = app
+        .get_json("/v1/jobs/0123456789abcdef0123456789abcdef/frame.glb?t=0.5")
+        .await;
+    assert_eq!((s, error_code(&e)), (404, "not_found"));
+    assert_eq!(app.delete(&format!("/v1/jobs/{id}")).await.0, 204);
+    let (s, e) = app
+        .get_json(&format!("/v1/jobs/{id}/frame.glb?t=0.5"))
+        .await;
+    assert_eq!((s, error_code(&e)), (404, "not_found"));
     app.stop().await;
 }

@@ -437,8 +437,12 @@ async fn delete_is_refused_while_a_job_uses_the_tree() {
         let (s, body) = app.delete(&format!("/v1/trees/{id}")).await;
         assert_eq!((s, error_code(&body)), (409, "tree_in_use"));
     }
-    app.wait_status(job["id"].as_str().unwrap(), "succeeded")
-        .await;
+    let job = job["id"].as_str().unwrap();
+    app.wait_status(job, "succeeded").await;
+    // Still in use while the job exists: it renders new instants from it.
+    let (s, body) = app.delete(&format!("/v1/trees/{a}")).await;
+    assert_eq!((s, error_code(&body)), (409, "tree_in_use"));
+    assert_eq!(app.delete(&format!("/v1/jobs/{job}")).await.0, 204);
     let r = app
         .client
         .delete(app.url(&format!("/v1/trees/{a}")))

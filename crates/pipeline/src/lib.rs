@@ -201,6 +201,29 @@ pub trait Runner: Send + Sync + 'static {
     }
     /// Runs a job to the end, publishing outputs through `sink`.
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError>;
+    /// The job's frame at instant `t` in [0, 1] as a GLB: at `t = i / (n −
+    /// 1)` the same bytes as the job's per-frame GLB `i`. Runners that
+    /// cannot render single instants refuse with `invalid_job`.
+    fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
+        let _ = (input, t);
+        Err(JobError::invalid(
+            treemorph_api::ErrorCode::InvalidJob,
+            "this runner renders no single instants",
+        ))
+    }
+}
+
+/// Checks an instant of a job's timeline: finite and in [0, 1]
+/// (`invalid_request` otherwise, naming the value).
+pub fn check_instant(t: f32) -> Result<f32, JobError> {
+    if t.is_finite() && (0.0..=1.0).contains(&t) {
+        Ok(t)
+    } else {
+        Err(JobError::invalid(
+            treemorph_api::ErrorCode::InvalidRequest,
+            format!("t must be a number in [0, 1], not {t}"),
+        ))
+    }
 }
 
 /// The runner `treemorph serve` uses: morph and sketch jobs through the

@@ -70,18 +70,92 @@ fn encode(e: EncodeError) -> JobError {
     JobError::from_domain(&e, "encoding frames: ")
 }
 
+/// The input tree `id` of a job.
+fn input_tree<'a>(input: &'a JobInput<'_>, id: &str) -> Result<&'a InputTree, JobError> {
+    input.trees.get(id).map(|t| &**t).ok_or_else(|| {
+        JobError::invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
+    })
+}
+
 impl Runner for PipelineRunner {
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
-        let tree = |id: &str| -> Result<&InputTree, JobError> {
-            input.trees.get(id).map(|t| &**t).ok_or_else(|| {
-                JobError::invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
-            })
-        };
+        let tree = |id: &str| input_tree(input, id);
         match input.spec {
             JobSpec::Morph(m) => run_morph(m, tree(&m.source)?, tree(&m.target)?, sink),
             JobSpec::Sketch(s) => run_sketch(s, tree(&s.tree)?, sink),
         }
     }
+
+    /// Plans the job again (plans are deterministic), samples the same
+    /// probes as the whole job (so tube side counts match its frames) and
+    /// meshes the one instant.
+    fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
+        let t = crate::check_instant(t)?;
+        let tree = |id: &str| input_tree(input, id);
+        match input.spec {
+            JobSpec::Morph(m) => {
+                let (source, target) = (tree(&m.source)?, tree(&m.target)?);
+                let (a, b) = rayon::join(|| analyse(source), || analyse(target));
+                let plan = plan_morph(m, source, a?, target, b?)?;
+                let mut morpher = Morpher::new(&plan);
+                instant(plan.topology(), |t, frame| morpher.morph(t, frame), t)
+            }
+            JobSpec::Sketch(s) => {
+                let tree = tree(&s.tree)?;
+                let plan = plan_sketch(s, tree, analyse(tree)?)?;
+                let mut sketcher = Sketcher::new(&plan);
+                instant(plan.topology(), |t, frame| sketcher.deform(t, frame), t)
+            }
+        }
+    }
+}
+
+fn plan_morph(
+    spec: &MorphSpec,
+    source: &InputTree,
+    a: &Analysis,
+    target: &InputTree,
+    b: &Analysis,
+) -> Result<MorphPlan, JobError> {
+    let started = Instant::now();
+    let plan = MorphPlan::new(source.tree(), a, target.tree(), b, &spec.options)
+        .map_err(|e| JobError::from_domain(&e, ""))?;
+    tracing::debug!(ms = ms_since(started), "morph planned");
+    Ok(plan)
+}
+
+fn plan_sketch(
+    spec: &SketchSpec,
+    input: &InputTree,
+    analysis: &Analysis,
+) -> Result<SketchPlan, JobError> {
+    SketchPlan::new(
+        input.tree(),
+        analysis,
+        &spec.view,
+        &spec.sketch,
+        &spec.options,
+    )
+    .map_err(|e| JobError::from_domain(&e, ""))
+}
+
+/// One instant of a sequence as the per-frame GLB writer writes it in a
+/// job: after the same probes [`render`] samples, and with the bark's
+/// texture coordinates fixed by the frame at t = 0, as the job's first
+/// frame fixes them.
+fn instant(
+    topology: &FrameTopology,
+    mut eval: impl FnMut(f32, &mut Frame),
+    t: f32,
+) -> Result<Vec<u8>, JobError> {
+    let mut frame = Frame::default();
+    let probed = probe(&mut eval, &mut frame);
+    let mut writer = FrameGlbWriter::new(topology, &probed.radii, &FrameGlbOptions::default())
+        .map_err(encode)?;
+    eval(0.0, &mut frame);
+    writer.set_uv_frame(&frame).map_err(encode)?;
+    eval(t, &mut frame);
+    writer.write(&frame).map_err(encode)
 }
 
 fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
@@ -100,15 +174,11 @@ fn run_morph(
     // Trees the cache has not analysed yet are analysed side by side.
     let (a, b) = rayon::join(|| analyse(source_input), || analyse(target_input));
     let (a, b) = (a?, b?);
-    let (source, target) = (source_input.tree(), target_input.tree());
     if sink.cancelled() {
         return Err(JobError::cancelled());
     }
     sink.stage(stage::PLANNING, 0.08);
-    let started = Instant::now();
-    let plan = MorphPlan::new(source, a, target, b, &spec.options)
-        .map_err(|e| JobError::from_domain(&e, ""))?;
-    tracing::debug!(ms = ms_since(started), "morph planned");
+    let plan = plan_morph(spec, source_input, a, target_input, b)?;
     let mut morpher = Morpher::new(&plan);
     let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
     let mut series = MorphSeries::with_capacity(spec.render.frames as usize);
@@ -189,13 +259,11 @@ fn run_sketch(
 ) -> Result<JobOutcome, JobError> {
     sink.stage(stage::ANALYSING, 0.02);
     let analysis = analyse(input)?;
-    let tree = input.tree();
     if sink.cancelled() {
         return Err(JobError::cancelled());
     }
     sink.stage(stage::PLANNING, 0.08);
-    let plan = SketchPlan::new(tree, analysis, &spec.view, &spec.sketch, &spec.options)
-        .map_err(|e| JobError::from_domain(&e, ""))?;
+    let plan = plan_sketch(spec, input, analysis)?;
     let mut sketcher = Sketcher::new(&plan);
     let mut meter = SketchMetrics::new(&plan);
     let mut series = SketchSeries::with_capacity(spec.render.frames as usize);

@@ -367,3 +367,46 @@ fn metrics_count_floating_parts_on_the_meshes_written() {
         "{metrics}"
     );
 }
+
+/// A frame rendered at an instant is the job's own frame at that instant,
+/// byte for byte, for morphs and sketches; instants between frames render
+/// too, and instants outside [0, 1] are refused.
+#[test]
+fn a_frame_at_an_instant_is_the_jobs_frame_there() {
+    let frames = 5;
+    for (request, trees) in [
+        (morph_request(frames, Outputs::default()), morph_trees()),
+        (
+            heart_request(frames),
+            HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]),
+        ),
+    ] {
+        let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+        };
+        let mut sink = MemorySink::default();
+        PipelineRunner::default().run(&input, &mut sink).unwrap();
+        let runner = PipelineRunner::default();
+        for i in [0, 2, frames - 1] {
+            let t = i as f32 / (frames - 1) as f32;
+            let glb = runner.frame_at(&input, t).unwrap();
+            let job = sink.frames[i as usize].glb.as_ref().unwrap();
+            let first = glb.iter().zip(job).position(|(a, b)| a != b);
+            assert!(
+                &glb == job,
+                "frame {i} differs from the instant {t}: {} vs {} bytes, first at {first:?}",
+                glb.len(),
+                job.len()
+            );
+        }
+        let between = runner.frame_at(&input, 0.375).unwrap();
+        assert!(sink.frames.iter().all(|f| f.glb.as_ref() != Some(&between)));
+        assert_eq!(&between[..4], b"glTF");
+        for bad in [-0.1, 1.5, f32::NAN] {
+            let e = runner.frame_at(&input, bad).unwrap_err();
+            assert_eq!(e.code, ErrorCode::InvalidRequest, "{bad}: {e:?}");
+        }
+    }
+}

@@ -2,7 +2,9 @@
 //!
 //! Layout: `DIR/frames/NNNN.glb` (one per frame, 0-based, four digits or
 //! more), `DIR/animation.glb`, `DIR/stream.tmd` (the delta stream) and
-//! `DIR/metrics.json` — the names the server stores them under. URLs come
+//! `DIR/metrics.json` — the names the server stores them under — or, with
+//! `--t T`, only `DIR/frame_at_T.glb` (`T` with four decimals, the name
+//! `treemorph morph --at` writes), rendered by the server. URLs come
 //! from the job document's `result.links`, never rebuilt by hand, so the
 //! client follows the server's routes.
 //!
@@ -17,7 +19,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, anyhow};
 use futures_util::{StreamExt, TryStreamExt};
 use reqwest::Method;
-use treemorph_api::jobs::{JobInfo, JobStatus};
+use treemorph_api::jobs::{JobInfo, JobResult, JobStatus};
 
 use super::EXIT_NOT_FOUND;
 use super::api::{Api, failure};
@@ -42,17 +44,9 @@ pub enum DownloadFormat {
     All,
 }
 
-/// Downloads the outputs `formats` selects (everything the job produced
-/// when empty or `all`) into `dir`; returns the files written, in order.
-///
-/// A format asked for by name that the job did not produce is a
-/// not-found failure; under `all` it is skipped.
-pub async fn download(
-    api: &Api,
-    info: &JobInfo,
-    dir: &Path,
-    formats: &[DownloadFormat],
-) -> Result<Vec<PathBuf>, Failure> {
+/// The result of a job that succeeded; a failure naming what to do for
+/// any other job.
+fn succeeded(info: &JobInfo) -> Result<&JobResult, Failure> {
     match info.status {
         JobStatus::Succeeded => {}
         JobStatus::Failed | JobStatus::Cancelled => return Err(job_failure(info)),
@@ -68,7 +62,7 @@ pub async fn download(
             ));
         }
     }
-    let result = info.result.as_ref().ok_or_else(|| {
+    info.result.as_ref().ok_or_else(|| {
         failure(
             EXIT_FAILURE,
             anyhow!(
@@ -76,7 +70,21 @@ pub async fn download(
                 info.id
             ),
         )
-    })?;
+    })
+}
+
+/// Downloads the outputs `formats` selects (everything the job produced
+/// when empty or `all`) into `dir`; returns the files written, in order.
+///
+/// A format asked for by name that the job did not produce is a
+/// not-found failure; under `all` it is skipped.
+pub async fn download(
+    api: &Api,
+    info: &JobInfo,
+    dir: &Path,
+    formats: &[DownloadFormat],
+) -> Result<Vec<PathBuf>, Failure> {
+    let result = succeeded(info)?;
     let all = formats.is_empty() || formats.contains(&DownloadFormat::All);
     let wanted = |f| all || formats.contains(&f);
     let missing = |what: &str| {
@@ -137,6 +145,28 @@ pub async fn download(
         .buffered(PARALLEL_FETCHES)
         .try_collect()
         .await
+}
+
+/// Downloads the frame at instant `t` of a succeeded job into
+/// `DIR/frame_at_T.glb`; returns the file written.
+pub async fn download_instant(
+    api: &Api,
+    info: &JobInfo,
+    dir: &Path,
+    t: f32,
+) -> Result<PathBuf, Failure> {
+    let result = succeeded(info)?;
+    let template = result.links.frame_at.as_ref().ok_or_else(|| {
+        failure(
+            EXIT_NOT_FOUND,
+            anyhow!("not_found: this server renders no frames at instants (it is older than that)"),
+        )
+    })?;
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating {}", dir.display()))
+        .map_err(|e| failure(EXIT_FAILURE, e))?;
+    let path = template.replace("{t}", &t.to_string());
+    fetch(api, path, dir.join(format!("frame_at_{t:.4}.glb"))).await
 }
 
 /// Streams one server path into `dest` atomically.

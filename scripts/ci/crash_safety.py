@@ -506,6 +506,37 @@ class Verifier:
             self.same_as_disk(s.body, f"{prefix}/files/stream.tmd", f"job {jid} stream")
 
 
+DELETES = 10
+
+
+def delete_ended_jobs(base, data_dir, jobs):
+    """Renders an instant of a succeeded job, then deletes DELETES ended
+    jobs: each answers 204, then 404, and leaves no file under the data
+    directory's blobs. Returns the ids deleted."""
+    ended = [j for j in jobs if j["status"] in ("succeeded", "failed", "cancelled")]
+    done = [j for j in ended if j["status"] == "succeeded"]
+    if check(done, "no job succeeded"):
+        jid = done[0]["id"]
+        r = request(base, "GET", f"/v1/jobs/{jid}/frame.glb?t=0.375")
+        want = b"glTF" + struct.pack("<f", 0.375) + b"instant"
+        check(r.status == 200 and r.body == want,
+              f"GET /v1/jobs/{jid}/frame.glb?t=0.375 answered {r.status}: {r.body[:60]!r}, want {want!r}")
+    deleted = []
+    for j in ended[:DELETES]:
+        jid = j["id"]
+        r = request(base, "DELETE", f"/v1/jobs/{jid}")
+        check(r.status == 204, f"DELETE of ended job {jid} ({j['status']}) answered {r.status}: {r.body[:200]!r}")
+        r = request(base, "GET", f"/v1/jobs/{jid}")
+        check(r.status == 404, f"deleted job {jid} answered {r.status}")
+        left = []
+        for root, _, files in os.walk(os.path.join(data_dir, "blobs", "jobs", jid)):
+            left.extend(os.path.join(root, f) for f in files)
+        check(not left, f"deleted job {jid} left {len(left)} files: {left[:3]}")
+        deleted.append(jid)
+    log(f"rendered an instant; deleted {len(deleted)} ended jobs")
+    return deleted
+
+
 def last_attempts(trace):
     """job -> token of its latest attempt (the one its row publishes)."""
     last = {}
@@ -730,6 +761,12 @@ def main():
         # maps to, and every served blob was compared with its committed file.
         with open(os.path.join(a.out, "strays.json"), "w") as f:
             json.dump(strays, f, indent=1)
+
+        # Renders on request and deletion, after the crashes: the frame at
+        # an instant of a succeeded job, then ended jobs deleted with every
+        # blob they own.
+        for jid in delete_ended_jobs(base, data_dir, jobs):
+            jobs_by_id.pop(jid)
 
         # A clean stop, then the database on disk.
         code = server.terminate()

@@ -109,7 +109,12 @@ const GROUPS: &[Group] = &[
     (stages::import_rows, &["import glb"]),
     (
         stages::morph_rows,
-        &["morph plan", "morph frame", "morph frame + meshes"],
+        &[
+            "morph plan",
+            "morph frame",
+            "frame at an instant",
+            "morph frame + meshes",
+        ],
     ),
     (
         stages::sketch_rows,

@@ -205,7 +205,9 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
             Some(10.0),
         ),
     ];
-    for ((pa, sa, la), (pb, sb, lb), plan_target, frame_target) in cases {
+    for (k, ((pa, sa, la), (pb, sb, lb), plan_target, frame_target)) in
+        cases.into_iter().enumerate()
+    {
         let a = thinned(&tree(pa, 1, sa), la);
         let b = thinned(&tree(pb, 2, sb), lb);
         let options = AnalysisOptions::default();
@@ -270,6 +272,14 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
             std::hint::black_box(meshes.mesh(&frame).expect("mesh"));
         });
         let (branches, leaves) = meshes.mesh(&frame).expect("mesh");
+        let instant_target = [50.0, 150.0][k];
+        rows.push(instant_row(
+            quick,
+            (&a, &aa),
+            (&b, &ab),
+            instant_target,
+            (&input, &size),
+        ));
         rows.push(row(
             "morph frame + meshes",
             input,
@@ -284,6 +294,65 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
             ),
         ));
     }
+}
+
+/// `GET /v1/jobs/{id}/frame.glb?t=` without HTTP: the frame at an instant
+/// of a 60-frame morph with default options, from trees whose analysis is
+/// cached (as the service keeps them): planning, the probes and one
+/// per-frame GLB.
+fn instant_row(
+    quick: bool,
+    (a, aa): (&Tree, &treemorph_analysis::Analysis),
+    (b, ab): (&Tree, &treemorph_analysis::Analysis),
+    target: f64,
+    (input, size): (&str, &str),
+) -> Row {
+    use std::collections::HashMap;
+    use std::sync::Arc;
+
+    use treemorph_api::jobs::{JobRequest, MorphRequest};
+
+    use crate::pipeline::{InputTree, JobInput, JobSpec, Limits, PipelineRunner, Runner};
+    let trees = HashMap::from([
+        (
+            "a".to_owned(),
+            Arc::new(InputTree::with_analysis(a.clone(), aa.clone())),
+        ),
+        (
+            "b".to_owned(),
+            Arc::new(InputTree::with_analysis(b.clone(), ab.clone())),
+        ),
+    ]);
+    let request = JobRequest::Morph(MorphRequest {
+        source: "a".into(),
+        target: "b".into(),
+        frames: 60,
+        options: Default::default(),
+        outputs: Default::default(),
+        callback_url: None,
+    });
+    let spec = JobSpec::parse(&request, &Limits::default()).expect("a valid job");
+    let job = JobInput {
+        spec: &spec,
+        trees: &trees,
+    };
+    let runner = PipelineRunner::default();
+    let mut bytes = 0;
+    let timing = measure(quick, || {
+        bytes = runner.frame_at(&job, 0.375).expect("an instant").len();
+    });
+    row(
+        "frame at an instant",
+        input.to_owned(),
+        size.to_owned(),
+        timing,
+        String::new(),
+        Some(target),
+        format!(
+            "plan + probes + one GLB of {:.1} MB (frame.glb?t=)",
+            bytes as f64 / 1e6
+        ),
+    )
 }
 
 /// The sketch paper's Table 1 input sizes (5,031 branches / 3,830 leaves)

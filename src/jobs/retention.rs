@@ -12,9 +12,12 @@
 //!   no later write touches), not from creation: a job that queued for a
 //!   day still keeps its results for the whole TTL.
 //! - **Trees are not expired.** They are the users' assets, deleted only
-//!   on request (`DELETE /v1/trees/{id}`, refused while a queued or running
-//!   job uses the tree). Job outputs are complete files that do not read
-//!   their trees again, so deleting a tree never breaks a job that ended.
+//!   on request (`DELETE /v1/trees/{id}`), which is refused while a job
+//!   that still exists uses the tree: a job renders frames at new instants
+//!   from its trees. Once its jobs are deleted or expired, a tree can go.
+//! - **Webhook records** of deliveries that are done go with their job
+//!   (or at the next sweep); a pending one stays until it is delivered or
+//!   given up, so a deleted job's end is still announced.
 //! - **Orphans** are blob prefixes (`jobs/{id}`, `trees/{id}`) whose row
 //!   does not exist, and upload spool files. Blobs are written before
 //!   the row that names them, so a prefix without a row may be an upload
@@ -50,6 +53,8 @@ pub struct Swept {
     pub orphan_prefixes: u64,
     /// Upload spool files.
     pub spool_files: u64,
+    /// Records of done webhook deliveries whose job is gone.
+    pub webhook_records: u64,
 }
 
 /// Deletes every blob a job owns. Failures are logged: the orphan sweep
@@ -85,10 +90,12 @@ pub async fn sweep(services: &Services) -> anyhow::Result<Swept> {
         None => 0,
     };
     let orphan_prefixes = sweep_orphans(&services.db, &services.blobs, grace).await?;
+    let webhook_records = super::webhooks::purge_done_without_job(&services.db).await?;
     Ok(Swept {
         expired_jobs,
         orphan_prefixes,
         spool_files,
+        webhook_records,
     })
 }
 

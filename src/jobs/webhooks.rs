@@ -57,6 +57,20 @@ pub async fn schedule(tx: &mut Transaction<'_, Any>, row: &JobRow) -> Result<(),
     Ok(())
 }
 
+/// Deletes the records of deliveries that are done (delivered or given
+/// up) and whose job is gone (deleted or expired); returns how many went.
+/// A pending delivery of a deleted job stays until it is done: the job's
+/// end is still announced.
+pub async fn purge_done_without_job(db: &crate::store::Db) -> Result<u64, sqlx::Error> {
+    Ok(sqlx::query(
+        "DELETE FROM webhook_deliveries WHERE state <> 'pending' \
+         AND job_id NOT IN (SELECT id FROM jobs)",
+    )
+    .execute(&db.writer)
+    .await?
+    .rows_affected())
+}
+
 /// Parses a `whsec_<base64>` secret into the HMAC key.
 pub fn parse_secret(secret: &str) -> Result<Vec<u8>, String> {
     let b64 = secret

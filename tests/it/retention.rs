@@ -173,8 +173,30 @@ async fn blobs_without_a_row_are_swept_once_old() {
             .set_modified(an_hour_ago)
             .unwrap();
     }
+    // Webhook records of a deleted job: the done one goes, the pending
+    // one stays until it is delivered.
+    let db = &app.state.services.db;
+    for (id, state) in [("msg_done", "delivered"), ("msg_pending", "pending")] {
+        sqlx::query(
+            "INSERT INTO webhook_deliveries (id, job_id, url, body, state, attempts, next_at, created_at) \
+             VALUES ($1, $2, 'http://127.0.0.1:9/', '{}', $3, 1, $4, 0)",
+        )
+        .bind(id)
+        .bind(&old_job)
+        .bind(state)
+        .bind(i64::MAX)
+        .execute(&db.writer)
+        .await
+        .unwrap();
+    }
     let swept = retention::sweep(&app.state.services).await.unwrap();
     assert_eq!(swept.orphan_prefixes, 2, "{swept:?}");
+    assert_eq!(swept.webhook_records, 1, "{swept:?}");
+    let (left,): (String,) = sqlx::query_as("SELECT id FROM webhook_deliveries")
+        .fetch_one(&db.pool)
+        .await
+        .unwrap();
+    assert_eq!(left, "msg_pending");
     let mut expected = before.clone();
     expected.push(
         app.dir

@@ -124,6 +124,11 @@ pub struct Settings {
     /// Largest tree upload in bytes.
     #[arg(long, env = "TREEMORPH_MAX_UPLOAD_BYTES", default_value_t = 64 * 1024 * 1024)]
     pub max_upload_bytes: u64,
+    /// Memory for frames rendered on request (`frame.glb?t=`), in MiB;
+    /// 0 keeps none (concurrent requests for one frame still render it
+    /// once).
+    #[arg(long, env = "TREEMORPH_RENDER_CACHE_MB", default_value_t = 256)]
+    pub render_cache_mb: u64,
     /// Storage quota per API key, in MiB: the bytes its trees and job
     /// outputs take. An upload that would exceed it, or a job while the
     /// key is at it, answers 507 `quota_exceeded`. 0: no quota.
@@ -132,9 +137,9 @@ pub struct Settings {
     /// Most frames a job may request.
     #[arg(long, env = "TREEMORPH_MAX_FRAMES", default_value_t = 600)]
     pub max_frames: u32,
-    /// Memory for parsed and analysed input trees kept between jobs, in
-    /// MiB (measured by the trees' stored JSON size); 0 turns the cache
-    /// off. Processes that run no workers (`--role api`) keep none.
+    /// Memory for parsed and analysed input trees kept between jobs and
+    /// renders on request, in MiB (measured by the trees' stored JSON
+    /// size); 0 turns the cache off.
     #[arg(long, env = "TREEMORPH_TREE_CACHE_MB", default_value_t = 256)]
     pub tree_cache_mb: u64,
     /// Milliseconds between database polls of SSE and stream subscribers

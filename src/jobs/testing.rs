@@ -57,6 +57,7 @@ type Decide = dyn Fn(&JobSpec) -> TestBehaviour + Send + Sync;
 pub struct TestRunner {
     decide: Arc<Decide>,
     runs: AtomicU32,
+    instants: AtomicU32,
     flaky_runs: AtomicU32,
     checks_reject_frames: Option<u32>,
     trace: Option<PathBuf>,
@@ -76,6 +77,7 @@ impl TestRunner {
         TestRunner {
             decide: Arc::new(decide),
             runs: AtomicU32::new(0),
+            instants: AtomicU32::new(0),
             flaky_runs: AtomicU32::new(0),
             checks_reject_frames: None,
             trace: None,
@@ -85,6 +87,11 @@ impl TestRunner {
     /// A runner that emits frames with `delay` before each.
     pub fn slow(delay: Duration) -> TestRunner {
         TestRunner::new(move |_| TestBehaviour::Frames(delay))
+    }
+
+    /// How many single instants were rendered ([`Runner::frame_at`]).
+    pub fn instants(&self) -> u32 {
+        self.instants.load(Ordering::SeqCst)
     }
 
     /// Makes [`Runner::check`] reject requests for exactly `frames` frames
@@ -256,8 +263,14 @@ pub fn instant_glb(t: f32) -> Vec<u8> {
 }
 
 impl Runner for TestRunner {
-    fn frame_at(&self, _input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
-        Ok(instant_glb(crate::pipeline::check_instant(t)?))
+    /// Takes as long as one of the job's frames.
+    fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
+        let t = crate::pipeline::check_instant(t)?;
+        self.instants.fetch_add(1, Ordering::SeqCst);
+        if let TestBehaviour::Frames(delay) = (self.decide)(input.spec) {
+            std::thread::sleep(delay);
+        }
+        Ok(instant_glb(t))
     }
 
     fn check(&self, request: &JobRequest, limits: &Limits) -> Result<JobSpec, JobError> {

@@ -411,7 +411,8 @@ pub async fn frame_at(
         (JobStatus::Succeeded, Some(prefix)) => prefix,
         _ => return Err(not_available(&row, "frame")),
     };
-    let etag = blob::etag_for(&format!("{prefix}/at/{:08x}", t.to_bits()));
+    let key = format!("{prefix}/at/{:08x}", t.to_bits());
+    let etag = blob::etag_for(&key);
     let cached = [
         (header::ETAG, etag.clone()),
         (
@@ -422,13 +423,17 @@ pub async fn frame_at(
     if super::extract::not_modified(&headers, &etag) {
         return Ok((StatusCode::NOT_MODIFIED, cached).into_response());
     }
-    let glb = render_at(&state, &row, t).await?;
+    let glb = state
+        .renders
+        .get_or_render(&key, render_at(&state, &row, t))
+        .await?;
     let typed = [(header::CONTENT_TYPE, "model/gltf-binary".to_owned())];
     Ok((StatusCode::OK, cached, typed, glb).into_response())
 }
 
 /// Renders `row`'s frame at `t` on the blocking pool (never in a worker
-/// slot: a render does not hold up the job queue).
+/// slot: a render does not hold up the job queue); the caller keeps it in
+/// the render cache ([`super::renders`]).
 async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
     let services = &state.services;
     let gone = |e: crate::pipeline::JobError| {

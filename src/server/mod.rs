@@ -34,6 +34,7 @@ pub mod health;
 pub mod jobs;
 pub mod openapi;
 pub mod quota;
+pub mod renders;
 pub mod slow_body;
 pub mod stream;
 pub mod trees;
@@ -76,6 +77,8 @@ pub struct AppState {
     pub keys: Arc<HashMap<String, String>>,
     /// Per-owner token buckets.
     pub limiter: Arc<RateLimiter>,
+    /// Frames rendered on request.
+    pub renders: Arc<renders::RenderCache>,
     /// Turns true when the server shuts down (live streams end).
     pub shutdown: watch::Receiver<bool>,
     shutdown_tx: Arc<watch::Sender<bool>>,
@@ -104,14 +107,10 @@ impl AppState {
             .collect();
         let limiter = RateLimiter::new(settings.rate_limit, settings.rate_burst);
         let (tx, rx) = watch::channel(false);
-        // Only processes that run jobs read the cache; an API process
-        // would fill it on every upload for nothing.
-        let cache_bytes = if settings.role.runs_workers() {
-            settings.tree_cache_mb.saturating_mul(1 << 20)
-        } else {
-            0
-        };
-        let trees = TreeCache::new(cache_bytes);
+        // Workers read the cache for jobs, API processes for renders on
+        // request (`frame.glb?t=`).
+        let trees = TreeCache::new(settings.tree_cache_mb.saturating_mul(1 << 20));
+        let renders = renders::RenderCache::new(settings.render_cache_mb.saturating_mul(1 << 20));
         Ok(AppState {
             services: Services {
                 trees: Arc::new(trees),
@@ -125,6 +124,7 @@ impl AppState {
             },
             keys: Arc::new(keys),
             limiter: Arc::new(limiter),
+            renders: Arc::new(renders),
             shutdown: rx,
             shutdown_tx: Arc::new(tx),
         })

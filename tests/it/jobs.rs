@@ -592,3 +592,31 @@ async fn frames_render_at_any_instant_on_request() {
     assert_eq!((s, error_code(&e)), (404, "not_found"));
     app.stop().await;
 }
+
+/// Concurrent requests for one instant render it once, and the render is
+/// kept for later requests; another instant renders anew.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_instant_renders_once_for_concurrent_requests() {
+    let runner = Arc::new(TestRunner::slow(Duration::from_millis(100)));
+    let app = spawn_with(runner.clone(), |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 3).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    app.wait_status(&id, "succeeded").await;
+    let path = format!("/v1/jobs/{id}/frame.glb?t=0.25");
+    let answers = futures_util::future::join_all(
+        (0..8).map(|_| async { app.get(&path).await.bytes().await.unwrap() }),
+    )
+    .await;
+    assert!(answers.iter().all(|b| b[..] == instant_glb(0.25)[..]));
+    assert_eq!(
+        runner.instants(),
+        1,
+        "eight concurrent requests rendered more than once"
+    );
+    app.get(&path).await.bytes().await.unwrap();
+    assert_eq!(runner.instants(), 1, "a cached render was rendered again");
+    app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.5")).await;
+    assert_eq!(runner.instants(), 2);
+    app.stop().await;
+}

@@ -43,7 +43,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::extract::{ApiQuery, decode_cursor, encode_cursor, json_body, page_limit, path_id};
-use super::{AppState, Owner, blob};
+use super::{AppState, Owner, blob, resample};
 use crate::error::ApiError;
 use crate::jobs::queue::{self, Cancel, Created, JobRow, NewJob};
 use crate::jobs::retention;
@@ -407,53 +407,22 @@ pub async fn frame_at(
 ) -> Result<Response, ApiError> {
     let t = crate::pipeline::check_instant(query.t)?;
     let row = find(&state, &owner, &id).await?;
-    let prefix = match (&row.status, row.published_prefix()) {
-        (JobStatus::Succeeded, Some(prefix)) => prefix,
-        _ => return Err(not_available(&row, "frame")),
-    };
+    let prefix = succeeded_prefix(&row, "frame")?;
     let key = format!("{prefix}/at/{:08x}", t.to_bits());
-    let etag = blob::etag_for(&key);
-    let cached = [
-        (header::ETAG, etag.clone()),
-        (
-            header::CACHE_CONTROL,
-            "private, max-age=31536000, immutable".to_owned(),
-        ),
-    ];
-    if super::extract::not_modified(&headers, &etag) {
-        return Ok((StatusCode::NOT_MODIFIED, cached).into_response());
-    }
-    let glb = state
+    let render = state
         .renders
-        .get_or_render(&key, render_at(&state, &row, t))
-        .await?;
-    let typed = [(header::CONTENT_TYPE, "model/gltf-binary".to_owned())];
-    Ok((StatusCode::OK, cached, typed, glb).into_response())
+        .get_or_render(&key, render_at(&state, &row, t));
+    serve_rendered(&headers, &key, "model/gltf-binary", render).await
 }
 
 /// Renders `row`'s frame at `t` on the blocking pool (never in a worker
 /// slot: a render does not hold up the job queue); the caller keeps it in
 /// the render cache ([`super::renders`]).
 async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
-    let services = &state.services;
-    let gone = |e: crate::pipeline::JobError| {
-        ApiError::new(
-            ErrorCode::PlanOutdated,
-            format!(
-                "this job can no longer render new instants ({}); post the same request again to re-run it",
-                e.message
-            ),
-        )
-    };
-    let spec = crate::jobs::worker::claimed_spec(services, row).map_err(gone)?;
-    let trees = crate::jobs::worker::load_trees(services, &spec)
-        .await
-        .map_err(|e| match e.code {
-            ErrorCode::TreeNotFound => gone(e),
-            ErrorCode::Unavailable => ApiError::unavailable(e.message),
-            _ => ApiError::from(e),
-        })?;
-    let runner = services.runner.clone();
+    let spec =
+        crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
+    let trees = resample::trees_of(state, &spec).await?;
+    let runner = state.services.runner.clone();
     let rendered = tokio::task::spawn_blocking(move || {
         let input = crate::pipeline::JobInput {
             spec: &spec,
@@ -464,6 +433,56 @@ async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, Ap
     .await
     .map_err(ApiError::internal)?;
     Ok(rendered?)
+}
+
+/// Serves a re-sampled whole-sequence file of a succeeded job: 409 or 404
+/// for other jobs (as their stored files), a key-derived ETag, and 304
+/// without a run when it matches.
+pub async fn resampled(
+    state: &AppState,
+    row: &JobRow,
+    what: resample::Resample,
+    content_type: &'static str,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    let prefix = succeeded_prefix(row, "output")?;
+    let key = what.key(&prefix);
+    let render = resample::file(state, row, &prefix, what);
+    serve_rendered(headers, &key, content_type, render).await
+}
+
+/// The blob prefix of a succeeded job's outputs; 409 or 404 naming `what`
+/// for any other job.
+fn succeeded_prefix(row: &JobRow, what: &str) -> Result<String, ApiError> {
+    match (&row.status, row.published_prefix()) {
+        (JobStatus::Succeeded, Some(prefix)) => Ok(prefix),
+        _ => Err(not_available(row, what)),
+    }
+}
+
+/// Serves a render on request: an ETag derived from its `key` (a render is
+/// a deterministic function of the key), 304 without rendering when it
+/// matches, else the bytes `render` gives.
+async fn serve_rendered(
+    headers: &HeaderMap,
+    key: &str,
+    content_type: &'static str,
+    render: impl std::future::Future<Output = Result<bytes::Bytes, ApiError>>,
+) -> Result<Response, ApiError> {
+    let etag = blob::etag_for(key);
+    let cached = [
+        (header::ETAG, etag.clone()),
+        (
+            header::CACHE_CONTROL,
+            "private, max-age=31536000, immutable".to_owned(),
+        ),
+    ];
+    if super::extract::not_modified(headers, &etag) {
+        return Ok((StatusCode::NOT_MODIFIED, cached).into_response());
+    }
+    let bytes = render.await?;
+    let typed = [(header::CONTENT_TYPE, content_type.to_owned())];
+    Ok((StatusCode::OK, cached, typed, bytes).into_response())
 }
 
 /// 409 `not_ready` while the job may still produce it, 404 otherwise.
@@ -561,6 +580,7 @@ async fn file(
     tag = "jobs",
     params(
         ("id" = String, Path, description = "Job id"),
+        AnimationQuery,
         ("Range" = Option<String>, Header, description = "A single byte range"),
         ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy"),
     ),
@@ -571,17 +591,37 @@ async fn file(
         (status = 304, description = "Not modified"),
         (status = 404, description = "No such job, or no animation (`not_found`)", body = treemorph_api::ErrorBody),
         (status = 409, description = "The job has not finished (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 410, description = "The job can no longer be re-sampled (`plan_outdated`); run it again", body = treemorph_api::ErrorBody),
         (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+        (status = 422, description = "Bad `keyframes` (`invalid_request`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn animation(
     State(state): State<AppState>,
     owner: Owner,
     Path(id): Path<String>,
+    ApiQuery(query): ApiQuery<AnimationQuery>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let row = find(&state, &owner, &id).await?;
-    file(&state, &row, "animation.glb", "model/gltf-binary", &headers).await
+    match query.keyframes {
+        Some(k) => {
+            let what = resample::Resample::Keyframes(k);
+            resampled(&state, &row, what, "model/gltf-binary", &headers).await
+        }
+        None => file(&state, &row, "animation.glb", "model/gltf-binary", &headers).await,
+    }
+}
+
+/// Query of `GET /v1/jobs/{id}/animation.glb`.
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationQuery {
+    /// Re-sample the sequence with this many keyframes (2 to the job's
+    /// frame count), rendered on request; without it, the job's own file.
+    #[param(minimum = 2)]
+    pub keyframes: Option<u32>,
 }
 
 /// Get the job's metrics document.

@@ -35,6 +35,7 @@ pub mod jobs;
 pub mod openapi;
 pub mod quota;
 pub mod renders;
+pub mod resample;
 pub mod slow_body;
 pub mod stream;
 pub mod trees;

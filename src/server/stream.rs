@@ -26,6 +26,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::events::JobWatch;
+use super::extract::ApiQuery;
 use super::{AppState, Owner, blob};
 use crate::error::ApiError;
 use crate::jobs::queue::{self, JobRow};
@@ -33,6 +34,18 @@ use crate::jobs::queue::{self, JobRow};
 /// The routes of this module.
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new().routes(routes!(stream))
+}
+
+/// Query of `GET /v1/jobs/{id}/stream`.
+#[derive(Debug, serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub struct StreamQuery {
+    /// Re-sample a succeeded job's sequence with this many frames,
+    /// rendered on request (within the server's frame limit); without it,
+    /// the job's own stream.
+    #[param(minimum = 2)]
+    pub frames: Option<u32>,
 }
 
 /// Get the delta stream: live while the job runs, complete afterwards.
@@ -43,6 +56,7 @@ pub fn routes() -> OpenApiRouter<AppState> {
     tag = "jobs",
     params(
         ("id" = String, Path, description = "Job id"),
+        StreamQuery,
         ("Range" = Option<String>, Header, description = "A single byte range (finished jobs)"),
         ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy (finished jobs)"),
     ),
@@ -53,17 +67,25 @@ pub fn routes() -> OpenApiRouter<AppState> {
             content_type = "application/vnd.treemorph.delta", body = [u8]),
         (status = 304, description = "Not modified"),
         (status = 404, description = "No such job, the job failed, or the stream was not requested (`not_found`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "`frames` asked of a job that has not succeeded yet (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 410, description = "The job can no longer be re-sampled (`plan_outdated`); run it again", body = treemorph_api::ErrorBody),
         (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
+        (status = 422, description = "Bad `frames` (`invalid_request`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn stream(
     State(state): State<AppState>,
     owner: Owner,
     Path(id): Path<String>,
+    ApiQuery(query): ApiQuery<StreamQuery>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let watcher = JobWatch::new(&state, &owner, &id);
     let row = super::jobs::find(&state, &owner, &id).await?;
+    if let Some(n) = query.frames {
+        let what = super::resample::Resample::Frames(n);
+        return super::jobs::resampled(&state, &row, what, MEDIA_TYPE, &headers).await;
+    }
     let wants_delta = serde_json::from_str::<JobRequest>(&row.request)
         .map(|r| r.outputs().delta)
         .unwrap_or(true);

@@ -85,6 +85,25 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
     let between = between.bytes().await.unwrap();
     assert_eq!(&between[..4], b"glTF");
     assert_ne!(between, frame_4);
+    // Re-sampled sequences, run again on request.
+    let stream = app
+        .get(&format!("/v1/jobs/{id}/stream?frames=4"))
+        .await
+        .bytes()
+        .await
+        .unwrap();
+    let (_, resampled) = treemorph_api::delta::decode_all(&stream, &Default::default()).unwrap();
+    assert_eq!(resampled.len(), 4);
+    let keyed = app
+        .get(&format!("/v1/jobs/{id}/animation.glb?keyframes=2"))
+        .await;
+    assert_eq!(keyed.status(), 200);
+    let keyed = keyed.bytes().await.unwrap();
+    assert_eq!(&keyed[..4], b"glTF");
+    assert_ne!(
+        keyed, animation,
+        "two keyframes wrote the job's own animation"
+    );
 
     let (s, job) = app
         .post_json("/v1/jobs", &json!({

@@ -620,3 +620,73 @@ async fn an_instant_renders_once_for_concurrent_requests() {
     assert_eq!(runner.instants(), 2);
     app.stop().await;
 }
+
+/// `stream?frames=N` and `animation.glb?keyframes=K` re-sample a succeeded
+/// job on request, once (cached, then 304 by ETag); bad counts are 422,
+/// an unfinished job is 409.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sequences_are_resampled_on_request() {
+    let runner = Arc::new(TestRunner::slow(Duration::from_millis(20)));
+    let app = spawn_with(runner.clone(), |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 5).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    let (s, e) = app
+        .get_json(&format!("/v1/jobs/{id}/stream?frames=9"))
+        .await;
+    assert_eq!((s, error_code(&e)), (409, "not_ready"));
+    app.wait_status(&id, "succeeded").await;
+    let runs = runner.runs();
+
+    let r = app.get(&format!("/v1/jobs/{id}/stream?frames=9")).await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(
+        r.headers()["content-type"],
+        treemorph_api::delta::MEDIA_TYPE
+    );
+    let etag = r.headers()["etag"].to_str().unwrap().to_owned();
+    let (_, frames) =
+        treemorph_api::delta::decode_all(&r.bytes().await.unwrap(), &Default::default()).unwrap();
+    assert_eq!(frames.len(), 9);
+    let own = app
+        .get(&format!("/v1/jobs/{id}/stream"))
+        .await
+        .bytes()
+        .await
+        .unwrap();
+    let (_, own) = treemorph_api::delta::decode_all(&own, &Default::default()).unwrap();
+    assert_eq!(own.len(), 5, "the job's own stream changed");
+    let again = app
+        .client
+        .get(app.url(&format!("/v1/jobs/{id}/stream?frames=9")))
+        .header("if-none-match", &etag)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(again.status(), 304);
+    app.get(&format!("/v1/jobs/{id}/stream?frames=9"))
+        .await
+        .bytes()
+        .await
+        .unwrap();
+    assert_eq!(runner.runs(), runs + 1, "a cached re-sample ran again");
+
+    let r = app
+        .get(&format!("/v1/jobs/{id}/animation.glb?keyframes=3"))
+        .await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(&r.bytes().await.unwrap()[..4], b"glTF");
+    for bad in [
+        "stream?frames=1",
+        "stream?frames=100000",
+        "stream?frames=x",
+        "stream?frame=9",
+        "animation.glb?keyframes=1",
+        "animation.glb?keyframes=6",
+        "animation.glb?keyframes=-2",
+    ] {
+        let (s, e) = app.get_json(&format!("/v1/jobs/{id}/{bad}")).await;
+        assert_eq!((s, error_code(&e)), (422, "invalid_request"), "{bad}: {e}");
+    }
+    app.stop().await;
+}

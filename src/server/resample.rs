@@ -1,0 +1,178 @@
+//! Whole sequences re-sampled on request: `animation.glb?keyframes=K` and
+//! `stream?frames=N` for a job that succeeded.
+//!
+//! # Choices
+//! - The job's stored request is run again with the new frame or keyframe
+//!   count and only the one output asked for, through the same
+//!   [`crate::pipeline::JobSpec`] conversion as a posted job, so a bad
+//!   count gets the same 422 `invalid_request` naming the field, and the
+//!   frames are the same functions of `t` as the job's own (plans are
+//!   deterministic). The job's metrics are not recomputed into it.
+//! - The run happens on the blocking pool, never in a worker slot, and its
+//!   file is kept in the render cache ([`super::renders`]) under the job's
+//!   attempt and the count, which also names its ETag: a repeated request
+//!   is served from memory or answered 304 without a run.
+//! - A job whose trees are gone answers 410 `plan_outdated`.
+
+use std::collections::HashMap;
+
+use bytes::Bytes;
+use serde_json::{Value, json};
+use treemorph_api::ErrorCode;
+use treemorph_api::jobs::JobRequest;
+
+use super::AppState;
+use crate::error::ApiError;
+use crate::jobs::queue::JobRow;
+use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, JobSpec, SinkError};
+
+/// What to re-sample.
+#[derive(Clone, Copy, Debug)]
+pub enum Resample {
+    /// The animated GLB with this many keyframes.
+    Keyframes(u32),
+    /// The delta stream with this many frames.
+    Frames(u32),
+}
+
+impl Resample {
+    /// The file the run produces.
+    fn file(self) -> &'static str {
+        match self {
+            Resample::Keyframes(_) => "animation.glb",
+            Resample::Frames(_) => "stream.tmd",
+        }
+    }
+
+    /// The cache key (and ETag source) under the job's attempt prefix.
+    pub fn key(self, prefix: &str) -> String {
+        match self {
+            Resample::Keyframes(k) => format!("{prefix}/keyframes/{k}"),
+            Resample::Frames(n) => format!("{prefix}/frames-resampled/{n}"),
+        }
+    }
+
+    /// Refuses a count outside what a job may ask for (422
+    /// `invalid_request` naming the query parameter): keyframes from 2 to
+    /// the job's frames, frames from the least a job has to the server's
+    /// limit.
+    fn check(self, job_frames: u32, max_frames: u32) -> Result<(), ApiError> {
+        let (name, value, range) = match self {
+            Resample::Keyframes(k) => ("keyframes", k, 2..=job_frames),
+            Resample::Frames(n) => ("frames", n, crate::pipeline::MIN_FRAMES..=max_frames),
+        };
+        if range.contains(&value) {
+            return Ok(());
+        }
+        Err(ApiError::invalid(format!(
+            "{name} is {value}; it must be from {} to {}",
+            range.start(),
+            range.end()
+        )))
+    }
+
+    /// The stored request with the new count and only this output.
+    fn request(self, stored: &str) -> Result<JobRequest, ApiError> {
+        let mut request: Value = serde_json::from_str(stored).map_err(ApiError::internal)?;
+        match self {
+            Resample::Keyframes(k) => {
+                request["options"]["keyframes"] = json!(k);
+                request["outputs"] = json!({"glb": false, "animated": true, "delta": false});
+            }
+            Resample::Frames(n) => {
+                request["frames"] = json!(n);
+                request["outputs"] = json!({"glb": false, "animated": false, "delta": true});
+            }
+        }
+        serde_json::from_value(request).map_err(ApiError::internal)
+    }
+}
+
+/// Collects the whole-sequence files of a run.
+#[derive(Default)]
+struct Files(HashMap<String, Vec<u8>>);
+
+impl JobSink for Files {
+    fn stage(&mut self, _stage: &'static str, _progress: f32) {}
+
+    fn cancelled(&self) -> bool {
+        false
+    }
+
+    fn stream_header(&mut self, _bytes: Vec<u8>) -> Result<(), SinkError> {
+        Ok(())
+    }
+
+    fn frame(&mut self, _frame: FrameOutput) -> Result<(), SinkError> {
+        Ok(())
+    }
+
+    fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError> {
+        self.0.insert(name.to_owned(), bytes);
+        Ok(())
+    }
+}
+
+/// 410 `plan_outdated`: the job cannot be run again.
+pub fn outdated(e: JobError) -> ApiError {
+    ApiError::new(
+        ErrorCode::PlanOutdated,
+        format!(
+            "this job can no longer render new outputs ({}); post the same request again to re-run it",
+            e.message
+        ),
+    )
+}
+
+/// `spec`'s input trees, from the tree cache or the blob store.
+pub async fn trees_of(
+    state: &AppState,
+    spec: &JobSpec,
+) -> Result<HashMap<String, std::sync::Arc<crate::pipeline::InputTree>>, ApiError> {
+    crate::jobs::worker::load_trees(&state.services, spec)
+        .await
+        .map_err(|e| match e.code {
+            ErrorCode::TreeNotFound => outdated(e),
+            ErrorCode::Unavailable => ApiError::unavailable(e.message),
+            _ => ApiError::from(e),
+        })
+}
+
+/// The re-sampled file of a succeeded job `row` whose outputs live under
+/// `prefix`, from the render cache or run now.
+pub async fn file(
+    state: &AppState,
+    row: &JobRow,
+    prefix: &str,
+    what: Resample,
+) -> Result<Bytes, ApiError> {
+    what.check(row.frames, state.settings().max_frames)?;
+    let request = what.request(&row.request)?;
+    let spec = state
+        .services
+        .runner
+        .check(&request, &state.settings().limits())?;
+    state
+        .renders
+        .get_or_render(&what.key(prefix), run(state, spec, what))
+        .await
+}
+
+async fn run(state: &AppState, spec: JobSpec, what: Resample) -> Result<Vec<u8>, ApiError> {
+    let trees = trees_of(state, &spec).await?;
+    let runner = state.services.runner.clone();
+    let mut files = tokio::task::spawn_blocking(move || {
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+        };
+        let mut files = Files::default();
+        runner.run(&input, &mut files).map(|_| files)
+    })
+    .await
+    .map_err(ApiError::internal)??;
+    files
+        .0
+        .remove(what.file())
+        .ok_or_else(|| ApiError::internal(format!("the run wrote no {}", what.file())))
+}

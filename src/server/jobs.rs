@@ -415,24 +415,12 @@ pub async fn frame_at(
     serve_rendered(&headers, &key, "model/gltf-binary", render).await
 }
 
-/// Renders `row`'s frame at `t` on the blocking pool (never in a worker
-/// slot: a render does not hold up the job queue); the caller keeps it in
-/// the render cache ([`super::renders`]).
+/// Renders `row`'s frame at `t` ([`resample::on_inputs`]); the caller
+/// keeps it in the render cache ([`super::renders`]).
 async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
     let spec =
         crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
-    let trees = resample::trees_of(state, &spec).await?;
-    let runner = state.services.runner.clone();
-    let rendered = tokio::task::spawn_blocking(move || {
-        let input = crate::pipeline::JobInput {
-            spec: &spec,
-            trees: &trees,
-        };
-        runner.frame_at(&input, t)
-    })
-    .await
-    .map_err(ApiError::internal)?;
-    Ok(rendered?)
+    resample::on_inputs(state, spec, move |runner, input| runner.frame_at(input, t)).await
 }
 
 /// Serves a re-sampled whole-sequence file of a succeeded job: 409 or 404

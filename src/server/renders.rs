@@ -79,9 +79,4 @@ impl RenderCache {
             .get_or_insert_async(key, async { render.await.map(Bytes::from) })
             .await
     }
-
-    /// Renders kept, and their bytes.
-    pub fn usage(&self) -> (usize, u64) {
-        (self.entries.len(), self.entries.weight())
-    }
 }

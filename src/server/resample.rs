@@ -24,7 +24,7 @@ use treemorph_api::jobs::JobRequest;
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::queue::JobRow;
-use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, JobSpec, SinkError};
+use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, JobSpec, Runner, SinkError};
 
 /// What to re-sample.
 #[derive(Clone, Copy, Debug)]
@@ -125,7 +125,7 @@ pub fn outdated(e: JobError) -> ApiError {
 }
 
 /// `spec`'s input trees, from the tree cache or the blob store.
-pub async fn trees_of(
+async fn trees_of(
     state: &AppState,
     spec: &JobSpec,
 ) -> Result<HashMap<String, std::sync::Arc<crate::pipeline::InputTree>>, ApiError> {
@@ -159,20 +159,34 @@ pub async fn file(
 }
 
 async fn run(state: &AppState, spec: JobSpec, what: Resample) -> Result<Vec<u8>, ApiError> {
-    let trees = trees_of(state, &spec).await?;
-    let runner = state.services.runner.clone();
-    let mut files = tokio::task::spawn_blocking(move || {
-        let input = JobInput {
-            spec: &spec,
-            trees: &trees,
-        };
+    let mut files = on_inputs(state, spec, |runner, input| {
         let mut files = Files::default();
-        runner.run(&input, &mut files).map(|_| files)
+        runner.run(input, &mut files).map(|_| files)
     })
-    .await
-    .map_err(ApiError::internal)??;
+    .await?;
     files
         .0
         .remove(what.file())
         .ok_or_else(|| ApiError::internal(format!("the run wrote no {}", what.file())))
+}
+
+/// Runs `work` on `spec` with its input trees, on the blocking pool (never
+/// in a worker slot: a render does not hold up the job queue).
+pub async fn on_inputs<T: Send + 'static>(
+    state: &AppState,
+    spec: JobSpec,
+    work: impl FnOnce(&dyn Runner, &JobInput<'_>) -> Result<T, JobError> + Send + 'static,
+) -> Result<T, ApiError> {
+    let trees = trees_of(state, &spec).await?;
+    let runner = state.services.runner.clone();
+    let done = tokio::task::spawn_blocking(move || {
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+        };
+        work(runner.as_ref(), &input)
+    })
+    .await
+    .map_err(ApiError::internal)?;
+    Ok(done?)
 }

@@ -32,6 +32,7 @@ pub mod events;
 pub mod extract;
 pub mod health;
 pub mod jobs;
+pub mod linger;
 pub mod openapi;
 pub mod quota;
 pub mod renders;
@@ -374,6 +375,7 @@ pub fn router(state: AppState) -> Router {
     app.fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(middleware::from_fn(refuse_encoded_bodies))
+        .layer(middleware::from_fn(linger::layer))
         .layer(middleware::from_fn(move |request: Request, next: Next| {
             slow_body::layer(body_limits, request, next)
         }))

@@ -103,15 +103,17 @@ pub fn guard(body: Body, limits: Limits) -> Body {
     Body::from_stream(stream)
 }
 
+/// Whether `request` may have a body: it declares a length or a
+/// transfer encoding.
+pub fn has_body(request: &Request) -> bool {
+    let headers = request.headers();
+    headers.contains_key(axum::http::header::CONTENT_LENGTH)
+        || headers.contains_key(axum::http::header::TRANSFER_ENCODING)
+}
+
 /// Middleware: guards the body of every request that may have one.
 pub async fn layer(limits: Limits, request: Request, next: Next) -> Response {
-    let has_body = request
-        .headers()
-        .contains_key(axum::http::header::CONTENT_LENGTH)
-        || request
-            .headers()
-            .contains_key(axum::http::header::TRANSFER_ENCODING);
-    if !has_body {
+    if !has_body(&request) {
         return next.run(request).await;
     }
     let (parts, body) = request.into_parts();

@@ -230,6 +230,44 @@ async fn uploads_over_the_limit_get_413_streamed_or_declared() {
     app.stop().await;
 }
 
+/// Regression: a client still sending a large body when the 413 arrived
+/// saw a broken pipe instead of the answer, because the server closed the
+/// connection with unread bytes in its buffers. The server now reads and
+/// discards the rest of the body for a bounded while after answering.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clients_still_sending_get_the_413_not_a_broken_pipe() {
+    let app = spawn_with(
+        std::sync::Arc::new(treemorph::jobs::testing::TestRunner::slow(
+            Default::default(),
+        )),
+        |s| s.max_upload_bytes = 10_000,
+    )
+    .await;
+    for attempt in 0..20 {
+        let declared = attempt % 2 == 0;
+        let request = app
+            .client
+            .post(app.url("/v1/trees"))
+            .header("content-type", "model/gltf-binary");
+        let request = if declared {
+            request.body(vec![b' '; 32 << 20])
+        } else {
+            let chunks = (0..10_000).map(|_| Ok::<_, std::io::Error>(vec![b' '; 64 << 10]));
+            request.body(reqwest::Body::wrap_stream(futures_util::stream::iter(
+                chunks,
+            )))
+        };
+        let r = request
+            .send()
+            .await
+            .unwrap_or_else(|e| panic!("attempt {attempt} (declared {declared}): {e:?}"));
+        assert_eq!(r.status(), 413, "attempt {attempt}");
+        let b: Value = r.json().await.unwrap();
+        assert_eq!(error_code(&b), "payload_too_large");
+    }
+    app.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn generate_validates_its_request() {
     let app = spawn().await;

@@ -124,8 +124,9 @@ pub struct Settings {
     /// Largest tree upload in bytes.
     #[arg(long, env = "TREEMORPH_MAX_UPLOAD_BYTES", default_value_t = 64 * 1024 * 1024)]
     pub max_upload_bytes: u64,
-    /// Memory for frames rendered on request (`frame.glb?t=`), in MiB;
-    /// 0 keeps none (concurrent requests for one frame still render it
+    /// Memory for outputs rendered on request (per-frame GLBs, the
+    /// animated GLB, `frame.glb?t=`, re-sampled sequences), in MiB; 0
+    /// keeps none (concurrent requests for one output still render it
     /// once).
     #[arg(long, env = "TREEMORPH_RENDER_CACHE_MB", default_value_t = 256)]
     pub render_cache_mb: u64,

@@ -100,8 +100,17 @@ pub struct StoredResult {
     pub metrics: serde_json::Value,
     /// Whole-sequence files published.
     pub files: Vec<String>,
-    /// Whether per-frame GLBs were published.
+    /// Whether per-frame GLBs were published (or are offered, rendered
+    /// on request).
     pub frame_glbs: bool,
+    /// The [`crate::pipeline::RENDER_VERSION`] of the process that ran the
+    /// job (1 for jobs stored before versions were recorded).
+    #[serde(default = "first_render_version")]
+    pub render_version: u32,
+}
+
+fn first_render_version() -> u32 {
+    1
 }
 
 fn decode_err(e: impl std::fmt::Display) -> sqlx::Error {
@@ -196,6 +205,14 @@ impl JobRow {
                 _ => None,
             },
         }
+    }
+
+    /// The outputs the job's request asked for (all, as the default, if
+    /// the stored request cannot be read).
+    pub fn requested_outputs(&self) -> treemorph_api::jobs::Outputs {
+        serde_json::from_str::<treemorph_api::jobs::JobRequest>(&self.request)
+            .map(|r| *r.outputs())
+            .unwrap_or_default()
     }
 
     /// The blob prefix of the published attempt's outputs.

@@ -160,6 +160,7 @@ async fn stale_attempt(db: Db) {
         metrics: serde_json::json!({}),
         files: vec![],
         frame_glbs: false,
+        render_version: crate::pipeline::RENDER_VERSION,
     };
     assert!(
         finish(&db, &row.id, &first.token, End::Succeeded(done.clone()))

@@ -151,7 +151,20 @@ impl BlobSink {
         self.frame_glbs
     }
 
-    /// Files published.
+    /// Offers the outputs of `requested` that a plan-first run left out
+    /// ([`crate::pipeline::JobSpec::stored_part`]): they are rendered on
+    /// request, and the job lists them as if stored (`files`,
+    /// `frame_glbs`), so its links and routes stay as they were.
+    pub fn offer_rendered(&mut self, requested: &treemorph_api::jobs::Outputs) {
+        if requested.glb {
+            self.frame_glbs = true;
+        }
+        if requested.animated && !self.files.iter().any(|f| f == "animation.glb") {
+            self.files.push("animation.glb".to_owned());
+        }
+    }
+
+    /// Files published (or offered, [`BlobSink::offer_rendered`]).
     pub fn files(&self) -> &[String] {
         &self.files
     }

@@ -61,6 +61,7 @@ pub struct TestRunner {
     flaky_runs: AtomicU32,
     checks_reject_frames: Option<u32>,
     trace: Option<PathBuf>,
+    plan_first: bool,
 }
 
 impl std::fmt::Debug for TestRunner {
@@ -81,6 +82,7 @@ impl TestRunner {
             flaky_runs: AtomicU32::new(0),
             checks_reject_frames: None,
             trace: None,
+            plan_first: false,
         }
     }
 
@@ -98,6 +100,16 @@ impl TestRunner {
     /// with `invalid_job` (to test the 422 path of `POST /v1/jobs`).
     pub fn rejecting_frames(mut self, frames: u32) -> TestRunner {
         self.checks_reject_frames = Some(frames);
+        self
+    }
+
+    /// Makes the runner claim [`Runner::renders_on_request`], so the
+    /// service stores only a job's stream and metrics and renders frames
+    /// ([`instant_glb`]) and the animated GLB when asked, as with the
+    /// production runner. Without it, jobs store every output, as jobs
+    /// stored by earlier versions did.
+    pub fn plan_first(mut self) -> TestRunner {
+        self.plan_first = true;
         self
     }
 
@@ -263,6 +275,10 @@ pub fn instant_glb(t: f32) -> Vec<u8> {
 }
 
 impl Runner for TestRunner {
+    fn renders_on_request(&self) -> bool {
+        self.plan_first
+    }
+
     /// Takes as long as one of the job's frames.
     fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
         let t = crate::pipeline::check_instant(t)?;

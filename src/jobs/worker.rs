@@ -11,6 +11,14 @@
 //! request was served by this process: the [`super::Hub`] sets the flag
 //! directly).
 //!
+//! # Plan first
+//! When the runner renders outputs again on request
+//! ([`crate::pipeline::Runner::renders_on_request`]), a job runs only its
+//! stored part: the delta stream and the metrics. Per-frame GLBs and the
+//! animated GLB are rendered from the job's request and trees when first
+//! asked for (`crate::server::jobs`), so a job stores about 1/60 of what
+//! it would and succeeds as soon as its frames are computed.
+//!
 //! # Shutdown
 //! [`Pool::shutdown`] stops claiming, lets in-flight attempts run for the
 //! grace period, then raises their release flag: runners stop at the next
@@ -27,7 +35,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::watch;
 use tokio::task::JoinSet;
 use treemorph_api::ErrorCode;
-use treemorph_api::jobs::JobRequest;
+use treemorph_api::jobs::{JobRequest, JobStatus};
 use treemorph_tree::Limits;
 
 use super::queue::{self, Claim, End, JobRow, Lease, StoredResult};
@@ -243,6 +251,25 @@ async fn delete_superseded(blobs: &crate::store::Blobs, id: &str, token: &str) {
 
 /// Records what the ended attempt's outputs take in the blob store, for
 /// the per-key quota; a failure only leaves the job counted as 0 bytes.
+/// Deletes a succeeded job's per-frame stream records: they served live
+/// viewers while the job ran, and `stream.tmd` holds the same bytes whole
+/// (live viewers switch to it at the success: `crate::server::stream`).
+/// Storing both would double the largest output a job keeps.
+async fn drop_stream_records(services: &Services, row: &JobRow, token: &str) {
+    let complete = row.status == JobStatus::Succeeded
+        && row
+            .result
+            .as_ref()
+            .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
+    if !complete {
+        return;
+    }
+    let records = format!("{}/stream", queue::attempt_prefix(&row.id, token));
+    if let Err(e) = services.blobs.delete_prefix(&records).await {
+        tracing::warn!(job = %row.id, error = %e, "could not delete the stream records");
+    }
+}
+
 async fn record_usage(services: &Services, id: &str, token: &str) {
     let prefix = queue::attempt_prefix(id, token);
     let recorded = match services.blobs.usage(&prefix).await {
@@ -386,6 +413,9 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
         flags,
     ));
     let runner = services.runner.clone();
+    let requested = *spec.outputs();
+    let plan_first = runner.renders_on_request();
+    let spec = if plan_first { spec.stored_part() } else { spec };
     // A thread of its own at job priority (see `super::priority`), not the
     // runtime's blocking pool, whose threads also serve file reads for
     // requests and would keep the lowered priority.
@@ -397,6 +427,9 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
             trees: &trees,
         };
         let result = catch_unwind(AssertUnwindSafe(|| runner.run(&input, sink.as_mut())));
+        if plan_first && matches!(result, Ok(Ok(_))) {
+            sink.offer_rendered(&requested);
+        }
         // Whatever the outcome, the outputs clients may already have seen
         // become durable before the attempt's end is recorded. A job that
         // succeeded but whose outputs cannot be synced is retried.
@@ -461,6 +494,7 @@ async fn settle(
                 metrics: outcome.metrics,
                 files: sink.files().to_vec(),
                 frame_glbs: sink.frame_glbs(),
+                render_version: crate::pipeline::RENDER_VERSION,
             }),
             "succeeded",
         ),
@@ -514,6 +548,7 @@ async fn settle(
     match queue::finish(db, id, token, end).await {
         Ok(Some(row)) => {
             tracing::info!(job = %id, status = row.status.as_str(), "job ended");
+            drop_stream_records(services, &row, token).await;
             record_usage(services, id, token).await;
             if row.callback_url.is_some() {
                 services.hub.webhooks.notify_one();

@@ -31,8 +31,54 @@ pub async fn serve(
     let Some(len) = blobs.size(key).await? else {
         return Err(ApiError::not_found(what));
     };
+    let (builder, range) = match plan(key, request, len) {
+        Planned::Send(builder, range) => (builder, range),
+        Planned::Done(response) => return Ok(response),
+    };
+    let length = range.as_ref().map_or(len, |r| r.end - r.start);
+    let stream = blobs.stream(key, range).await?;
+    Ok(builder
+        .header(header::CONTENT_TYPE, content_type)
+        .header(header::CONTENT_LENGTH, length)
+        .body(Body::from_stream(stream))
+        .expect("valid response"))
+}
+
+/// Serves `bytes` made on request under the ETag of `key` (a render is a
+/// deterministic function of its key), with the same 304 and single-range
+/// answers as a stored blob.
+pub fn serve_bytes(
+    key: &str,
+    content_type: &'static str,
+    request: &HeaderMap,
+    bytes: bytes::Bytes,
+) -> Response {
+    let len = bytes.len() as u64;
+    let (builder, range) = match plan(key, request, len) {
+        Planned::Send(builder, range) => (builder, range),
+        Planned::Done(response) => return response,
+    };
+    let body = match range {
+        Some(r) => bytes.slice(r.start as usize..r.end as usize),
+        None => bytes,
+    };
+    builder
+        .header(header::CONTENT_TYPE, content_type)
+        .body(Body::from(body))
+        .expect("valid response")
+}
+
+/// What to answer for a body of `len` bytes under `key`'s ETag.
+enum Planned {
+    /// Send the body (or this range of it) with these headers.
+    Send(axum::http::response::Builder, Option<std::ops::Range<u64>>),
+    /// Answer this without a body (304, 416).
+    Done(Response),
+}
+
+fn plan(key: &str, request: &HeaderMap, len: u64) -> Planned {
     let etag = etag_for(key);
-    let mut builder = Response::builder()
+    let builder = Response::builder()
         .header(header::ETAG, &etag)
         .header(header::ACCEPT_RANGES, "bytes")
         .header(
@@ -40,17 +86,21 @@ pub async fn serve(
             "private, max-age=31536000, immutable",
         );
     if not_modified(request, &etag) {
-        return Ok(builder
-            .status(StatusCode::NOT_MODIFIED)
-            .body(Body::empty())
-            .expect("valid response"));
+        return Planned::Done(
+            builder
+                .status(StatusCode::NOT_MODIFIED)
+                .body(Body::empty())
+                .expect("valid response"),
+        );
     }
-    let (status, range) = match parse_range(request, len) {
-        RangeRequest::Full => (StatusCode::OK, None),
-        RangeRequest::Partial(a, b) => {
-            builder = builder.header(header::CONTENT_RANGE, format!("bytes {a}-{}/{len}", b - 1));
-            (StatusCode::PARTIAL_CONTENT, Some(a..b))
-        }
+    match parse_range(request, len) {
+        RangeRequest::Full => Planned::Send(builder.status(StatusCode::OK), None),
+        RangeRequest::Partial(a, b) => Planned::Send(
+            builder
+                .status(StatusCode::PARTIAL_CONTENT)
+                .header(header::CONTENT_RANGE, format!("bytes {a}-{}/{len}", b - 1)),
+            Some(a..b),
+        ),
         RangeRequest::Unsatisfiable => {
             let e = ApiError::new(
                 ErrorCode::RangeNotSatisfiable,
@@ -61,15 +111,7 @@ pub async fn serve(
                 header::CONTENT_RANGE,
                 HeaderValue::from_str(&format!("bytes */{len}")).expect("ascii"),
             );
-            return Ok(r);
+            Planned::Done(r)
         }
-    };
-    let length = range.as_ref().map_or(len, |r| r.end - r.start);
-    let stream = blobs.stream(key, range).await?;
-    Ok(builder
-        .status(status)
-        .header(header::CONTENT_TYPE, content_type)
-        .header(header::CONTENT_LENGTH, length)
-        .body(Body::from_stream(stream))
-        .expect("valid response"))
+    }
 }

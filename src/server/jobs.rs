@@ -29,6 +29,14 @@
 //!   (`frames_ready`) and stays available when the job later fails or is
 //!   cancelled: the frames its last attempt published are a usable partial
 //!   result; frames never published answer 409 or 404 as above.
+//! - **Rendered on request.** A job run plan-first ([`crate::jobs::worker`])
+//!   stored no per-frame GLBs and no animated GLB. A frame it published is
+//!   rendered at its instant ([`crate::pipeline::frame_instant`]) when
+//!   first asked for, the animated GLB by a run of the job for that one
+//!   output; both are kept in the render cache ([`super::renders`]) under
+//!   their blob key, whose ETag they carry, with ranges and 304 like a
+//!   stored blob. A stored blob under the key (a job run by an earlier
+//!   version) is served as it is.
 
 use axum::Json;
 use axum::extract::{Path, Request, State};
@@ -418,6 +426,7 @@ pub async fn frame_at(
 /// Renders `row`'s frame at `t` ([`resample::on_inputs`]); the caller
 /// keeps it in the render cache ([`super::renders`]).
 async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
+    resample::check_version(row)?;
     let spec =
         crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
     resample::on_inputs(state, spec, move |runner, input| runner.frame_at(input, t)).await
@@ -450,27 +459,20 @@ fn succeeded_prefix(row: &JobRow, what: &str) -> Result<String, ApiError> {
 
 /// Serves a render on request: an ETag derived from its `key` (a render is
 /// a deterministic function of the key), 304 without rendering when it
-/// matches, else the bytes `render` gives.
+/// matches, else the bytes `render` gives (or the range asked for).
 async fn serve_rendered(
     headers: &HeaderMap,
     key: &str,
     content_type: &'static str,
     render: impl std::future::Future<Output = Result<bytes::Bytes, ApiError>>,
 ) -> Result<Response, ApiError> {
-    let etag = blob::etag_for(key);
-    let cached = [
-        (header::ETAG, etag.clone()),
-        (
-            header::CACHE_CONTROL,
-            "private, max-age=31536000, immutable".to_owned(),
-        ),
-    ];
-    if super::extract::not_modified(headers, &etag) {
-        return Ok((StatusCode::NOT_MODIFIED, cached).into_response());
-    }
-    let bytes = render.await?;
-    let typed = [(header::CONTENT_TYPE, content_type.to_owned())];
-    Ok((StatusCode::OK, cached, typed, bytes).into_response())
+    // A matching ETag is answered 304 before any bytes are looked at.
+    let bytes = if super::extract::not_modified(headers, &blob::etag_for(key)) {
+        bytes::Bytes::new()
+    } else {
+        render.await?
+    };
+    Ok(blob::serve_bytes(key, content_type, headers, bytes))
 }
 
 /// 409 `not_ready` while the job may still produce it, 404 otherwise.
@@ -482,7 +484,8 @@ fn not_available(row: &JobRow, what: &str) -> ApiError {
     }
 }
 
-/// Get one frame as GLB (available as soon as the frame is published).
+/// Get one frame as GLB (available as soon as the frame is published;
+/// rendered when first asked for, see the module docs).
 #[utoipa::path(
     get,
     path = "/v1/jobs/{id}/frames/{frame}",
@@ -501,6 +504,7 @@ fn not_available(row: &JobRow, what: &str) -> ApiError {
         (status = 304, description = "Not modified"),
         (status = 404, description = "No such job or frame (`not_found`)", body = treemorph_api::ErrorBody),
         (status = 409, description = "The frame is not published yet (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 410, description = "The frame is rendered on request, and this job can no longer render (`plan_outdated`); run it again", body = treemorph_api::ErrorBody),
         (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
     )
 )]
@@ -523,14 +527,22 @@ pub async fn frame(
         Some(p) if n < row.frames_ready => p,
         _ => return Err(not_available(&row, "frame")),
     };
-    blob::serve(
-        &state.services.blobs,
-        &queue::frame_glb_key(&prefix, n),
-        "model/gltf-binary",
-        &headers,
-        "frame (per-frame GLBs were not requested)",
-    )
-    .await
+    let key = queue::frame_glb_key(&prefix, n);
+    if !row.requested_outputs().glb || state.services.blobs.size(&key).await?.is_some() {
+        return blob::serve(
+            &state.services.blobs,
+            &key,
+            "model/gltf-binary",
+            &headers,
+            "frame (per-frame GLBs were not requested)",
+        )
+        .await;
+    }
+    let t = crate::pipeline::frame_instant(n, row.frames);
+    let render = state
+        .renders
+        .get_or_render(&key, render_at(&state, &row, t));
+    serve_rendered(&headers, &key, "model/gltf-binary", render).await
 }
 
 async fn file(
@@ -546,18 +558,29 @@ async fn file(
         .is_some_and(|r| r.files.iter().any(|f| f == name));
     match row.published_prefix() {
         Some(prefix) if row.status == JobStatus::Succeeded && produced => {
-            blob::serve(
-                &state.services.blobs,
-                &queue::file_key(&prefix, name),
-                content_type,
-                headers,
-                name,
-            )
-            .await
+            let key = queue::file_key(&prefix, name);
+            if name == "animation.glb" && state.services.blobs.size(&key).await?.is_none() {
+                return rendered_animation(state, row, headers).await;
+            }
+            blob::serve(&state.services.blobs, &key, content_type, headers, name).await
         }
         _ if row.status == JobStatus::Succeeded => Err(ApiError::not_found(name)),
         _ => Err(not_available(row, name)),
     }
+}
+
+/// The animated GLB of a plan-first job, rendered on request: the
+/// re-sampled animation at the job's own keyframe count (one render and
+/// one cache entry serve both).
+async fn rendered_animation(
+    state: &AppState,
+    row: &JobRow,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    let spec =
+        crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
+    let what = resample::Resample::Keyframes(spec.render().keyframes);
+    resampled(state, row, what, "model/gltf-binary", headers).await
 }
 
 /// Get the animated GLB of the whole sequence.

@@ -1,4 +1,5 @@
-//! Renders on request (`GET /v1/jobs/{id}/frame.glb?t=`): each rendered
+//! Renders on request (a plan-first job's per-frame GLBs and animated GLB,
+//! `GET /v1/jobs/{id}/frame.glb?t=`, re-sampled sequences): each rendered
 //! once, however many requests ask for it at the same time, and kept
 //! within `--render-cache-mb`.
 //!

@@ -124,6 +124,24 @@ pub fn outdated(e: JobError) -> ApiError {
     )
 }
 
+/// Refuses to render for a job that a process of another
+/// [`crate::pipeline::RENDER_VERSION`] ran (410 `plan_outdated`): its
+/// renders would not be the bytes it wrote. A job still running has no
+/// recorded version yet; it renders.
+pub fn check_version(row: &JobRow) -> Result<(), ApiError> {
+    let current = crate::pipeline::RENDER_VERSION;
+    match &row.result {
+        Some(result) if result.render_version != current => Err(ApiError::new(
+            ErrorCode::PlanOutdated,
+            format!(
+                "this job was run by another version of the renderer (version {}; this server renders version {current}), so its outputs cannot be rendered again; post the same request again to re-run it",
+                result.render_version
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// `spec`'s input trees, from the tree cache or the blob store.
 async fn trees_of(
     state: &AppState,
@@ -147,6 +165,7 @@ pub async fn file(
     what: Resample,
 ) -> Result<Bytes, ApiError> {
     what.check(row.frames, state.settings().max_frames)?;
+    check_version(row)?;
     let request = what.request(&row.request)?;
     let spec = state
         .services

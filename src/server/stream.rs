@@ -21,7 +21,7 @@ use bytes::Bytes;
 use tokio::sync::mpsc;
 use treemorph_api::ErrorCode;
 use treemorph_api::delta::MEDIA_TYPE;
-use treemorph_api::jobs::{JobRequest, JobStatus};
+use treemorph_api::jobs::JobStatus;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
@@ -86,10 +86,7 @@ pub async fn stream(
         let what = super::resample::Resample::Frames(n);
         return super::jobs::resampled(&state, &row, what, MEDIA_TYPE, &headers).await;
     }
-    let wants_delta = serde_json::from_str::<JobRequest>(&row.request)
-        .map(|r| r.outputs().delta)
-        .unwrap_or(true);
-    if !wants_delta {
+    if !row.requested_outputs().delta {
         return Err(ApiError::new(
             ErrorCode::NotFound,
             "this job's outputs exclude the delta stream",
@@ -140,68 +137,36 @@ pub async fn stream(
 }
 
 /// Feeds a live stream until the job ends or the client goes away.
+///
+/// Once the job has succeeded, the rest comes from `stream.tmd`: the
+/// worker deletes the per-frame records after the success it commits
+/// ([`crate::jobs::worker`]), so a record found missing while the job
+/// runs on means only that the success is on its way; nothing more is sent
+/// from records, and the complete stream finishes the response.
 async fn live(
     state: AppState,
     mut row: JobRow,
     mut watcher: JobWatch,
     tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
 ) {
-    let blobs = &state.services.blobs;
-    let mut token: Option<String> = None;
-    let mut header_sent = false;
-    let mut next_frame = 0u32;
-    let mut sent = 0u64;
+    let mut feed = Feed::default();
     loop {
-        if row.published_token != token {
-            if sent > 0 {
+        if row.published_token != feed.token {
+            if feed.sent > 0 {
                 // Another attempt replaced the one we were streaming.
                 return;
             }
-            token = row.published_token.clone();
-            header_sent = false;
-            next_frame = 0;
+            feed = Feed {
+                token: row.published_token.clone(),
+                ..Feed::default()
+            };
         }
         if let Some(prefix) = row.published_prefix() {
-            let mut chunks = Vec::new();
-            if !header_sent && row.header_ready {
-                chunks.push(queue::header_key(&prefix));
-                header_sent = true;
-            }
-            if header_sent {
-                while next_frame < row.frames_ready {
-                    chunks.push(queue::frame_delta_key(&prefix, next_frame));
-                    next_frame += 1;
-                }
-            }
-            for key in chunks {
-                match blobs.get(&key).await {
-                    Ok(Some(bytes)) => {
-                        sent += bytes.len() as u64;
-                        if tx.send(Ok(bytes)).await.is_err() {
-                            return;
-                        }
-                    }
-                    Ok(None) => {
-                        tracing::warn!(job = %row.id, key, "a published stream record is missing");
-                        return;
-                    }
-                    Err(e) => {
-                        tracing::warn!(job = %row.id, error = %e, "reading a stream record failed");
-                        return;
-                    }
-                }
-            }
             if row.status == JobStatus::Succeeded {
-                let complete = row
-                    .result
-                    .as_ref()
-                    .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
-                if complete
-                    && let Ok(Some(all)) = blobs.get(&queue::file_key(&prefix, "stream.tmd")).await
-                    && (all.len() as u64) >= sent
-                {
-                    let _ = tx.send(Ok(all.slice(sent as usize..))).await;
-                }
+                finish_from_stream_file(&state, &row, &prefix, feed.sent, &tx).await;
+                return;
+            }
+            if !feed.missing && !feed.send_records(&state, &row, &prefix, &tx).await {
                 return;
             }
         }
@@ -212,5 +177,84 @@ async fn live(
             Some(r) => row = r,
             None => return,
         }
+    }
+}
+
+/// Where a live stream stands within one attempt.
+#[derive(Default)]
+struct Feed {
+    token: Option<String>,
+    header_sent: bool,
+    next_frame: u32,
+    sent: u64,
+    /// A published record was missing: send no more records.
+    missing: bool,
+}
+
+impl Feed {
+    /// Sends the records published since the last call; false when the
+    /// client went away or the blob store failed.
+    async fn send_records(
+        &mut self,
+        state: &AppState,
+        row: &JobRow,
+        prefix: &str,
+        tx: &mpsc::Sender<Result<Bytes, std::io::Error>>,
+    ) -> bool {
+        let mut keys = Vec::new();
+        if !self.header_sent && row.header_ready {
+            keys.push(queue::header_key(prefix));
+            self.header_sent = true;
+        }
+        if self.header_sent {
+            while self.next_frame < row.frames_ready {
+                keys.push(queue::frame_delta_key(prefix, self.next_frame));
+                self.next_frame += 1;
+            }
+        }
+        for key in keys {
+            match state.services.blobs.get(&key).await {
+                Ok(Some(bytes)) => {
+                    self.sent += bytes.len() as u64;
+                    if tx.send(Ok(bytes)).await.is_err() {
+                        return false;
+                    }
+                }
+                Ok(None) => {
+                    tracing::debug!(job = %row.id, key, "a stream record is gone; waiting for the complete stream");
+                    self.missing = true;
+                    return true;
+                }
+                Err(e) => {
+                    tracing::warn!(job = %row.id, error = %e, "reading a stream record failed");
+                    return false;
+                }
+            }
+        }
+        true
+    }
+}
+
+/// Sends the complete stream of a succeeded job from byte `sent` on.
+async fn finish_from_stream_file(
+    state: &AppState,
+    row: &JobRow,
+    prefix: &str,
+    sent: u64,
+    tx: &mpsc::Sender<Result<Bytes, std::io::Error>>,
+) {
+    let complete = row
+        .result
+        .as_ref()
+        .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
+    if complete
+        && let Ok(Some(all)) = state
+            .services
+            .blobs
+            .get(&queue::file_key(prefix, "stream.tmd"))
+            .await
+        && (all.len() as u64) >= sent
+    {
+        let _ = tx.send(Ok(all.slice(sent as usize..))).await;
     }
 }

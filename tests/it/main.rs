@@ -11,6 +11,7 @@ mod fleet;
 mod hostile;
 mod jobs;
 mod openapi;
+mod plan_first;
 mod process;
 mod retention;
 mod scaleout;

@@ -2,7 +2,7 @@
 //! sweep of what crashes leave behind. Blobs are counted as files under
 //! the data directory's blob store, before and after.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
@@ -11,25 +11,7 @@ use treemorph::jobs::retention;
 use treemorph::jobs::testing::TestRunner;
 use treemorph::store::new_id;
 
-use crate::common::{TestApp, error_code, spawn, spawn_with};
-
-/// Every file under `dir`, recursively.
-fn files(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_owned()];
-    while let Some(d) = stack.pop() {
-        for entry in std::fs::read_dir(&d).into_iter().flatten().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push(path);
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use crate::common::{TestApp, error_code, files, spawn, spawn_with};
 
 fn blob_files(app: &TestApp) -> Vec<PathBuf> {
     files(&app.dir.path().join("blobs"))

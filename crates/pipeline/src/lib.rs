@@ -201,9 +201,18 @@ pub trait Runner: Send + Sync + 'static {
     }
     /// Runs a job to the end, publishing outputs through `sink`.
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError>;
-    /// The job's frame at instant `t` in [0, 1] as a GLB: at `t = i / (n −
-    /// 1)` the same bytes as the job's per-frame GLB `i`. Runners that
-    /// cannot render single instants refuse with `invalid_job`.
+    /// Whether this runner renders any output of a job it ran again on
+    /// request, byte for byte: per-frame GLBs with [`Runner::frame_at`] at
+    /// [`frame_instant`], whole-sequence files with [`Runner::run`] of the
+    /// same spec. The service then stores only a job's
+    /// [`JobSpec::stored_part`] and renders the rest when asked.
+    fn renders_on_request(&self) -> bool {
+        false
+    }
+    /// The job's frame at instant `t` in [0, 1] as a GLB: at
+    /// [`frame_instant`]`(i, n)` the same bytes as the job's per-frame GLB
+    /// `i`. Runners that cannot render single instants refuse with
+    /// `invalid_job`.
     fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
         let _ = (input, t);
         Err(JobError::invalid(
@@ -211,6 +220,23 @@ pub trait Runner: Send + Sync + 'static {
             "this runner renders no single instants",
         ))
     }
+}
+
+/// The version of what this build renders from a request and its trees.
+/// A job records the version that ran it; outputs rendered on request
+/// later must be the bytes the job would have written, so a process whose
+/// version differs refuses to render them (410 `plan_outdated`) instead
+/// of serving different bytes under the same name and ETag.
+///
+/// Bump it with every change that alters any output byte of a job for the
+/// same request and trees (geometry, meshing, encoding, metrics).
+pub const RENDER_VERSION: u32 = 1;
+
+/// The instant of frame `i` of `frames` (both ends included): `i / (frames
+/// − 1)`, computed the one way every frame and every render on request
+/// computes it, so a frame rendered later has the same bits of `t`.
+pub fn frame_instant(i: u32, frames: u32) -> f32 {
+    i as f32 / frames.saturating_sub(1).max(1) as f32
 }
 
 /// Checks an instant of a job's timeline: finite and in [0, 1]

@@ -78,6 +78,12 @@ fn input_tree<'a>(input: &'a JobInput<'_>, id: &str) -> Result<&'a InputTree, Jo
 }
 
 impl Runner for PipelineRunner {
+    /// Plans are deterministic, so every output renders again byte for
+    /// byte (`frames_render_again_byte_for_byte` in the tests).
+    fn renders_on_request(&self) -> bool {
+        true
+    }
+
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
         let tree = |id: &str| input_tree(input, id);
         match input.spec {
@@ -622,7 +628,7 @@ fn render(
         if sink.cancelled() {
             return Err(JobError::cancelled());
         }
-        let t = i as f32 / (frames - 1) as f32;
+        let t = crate::frame_instant(i, frames);
         let started = Instant::now();
         eval(t, &mut frame);
         let eval_ms = ms_since(started);

@@ -410,3 +410,56 @@ fn a_frame_at_an_instant_is_the_jobs_frame_there() {
         }
     }
 }
+
+/// What a plan-first service stores and renders later is what one run of
+/// the whole job writes: the stored part's stream is the full run's, a run
+/// for the animated GLB alone writes the full run's animated GLB, and the
+/// per-frame GLBs render again at their instants.
+#[test]
+fn frames_render_again_byte_for_byte() {
+    let frames = 5;
+    let request = morph_request(frames, Outputs::default());
+    let trees = morph_trees();
+    let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+    let runner = PipelineRunner::default();
+    assert!(runner.renders_on_request());
+    let run = |spec: &JobSpec| {
+        let mut sink = MemorySink::default();
+        let input = JobInput {
+            spec,
+            trees: &trees,
+        };
+        runner.run(&input, &mut sink).unwrap();
+        sink
+    };
+    let full = run(&spec);
+    let stored = run(&spec.stored_part());
+    assert!(stored.frames.iter().all(|f| f.glb.is_none()));
+    assert!(!stored.files.contains_key("animation.glb"));
+    assert!(stored.files["stream.tmd"] == full.files["stream.tmd"]);
+    let JobRequest::Morph(mut animated_only) = request.clone() else {
+        unreachable!()
+    };
+    animated_only.outputs = Outputs {
+        glb: false,
+        animated: true,
+        delta: false,
+    };
+    let animated_spec =
+        JobSpec::parse(&JobRequest::Morph(animated_only), &Limits::default()).unwrap();
+    let animated = run(&animated_spec);
+    assert!(animated.files["animation.glb"] == full.files["animation.glb"]);
+    let input = JobInput {
+        spec: &spec,
+        trees: &trees,
+    };
+    for i in 0..frames {
+        let glb = runner
+            .frame_at(&input, crate::frame_instant(i, frames))
+            .unwrap();
+        assert!(
+            Some(&glb) == full.frames[i as usize].glb.as_ref(),
+            "frame {i}"
+        );
+    }
+}

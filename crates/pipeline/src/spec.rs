@@ -169,6 +169,24 @@ impl JobSpec {
         &self.render().outputs
     }
 
+    /// The spec a plan-first run executes: the same job without the
+    /// outputs that are rendered on request instead of stored (the
+    /// per-frame GLBs and the animated GLB; see [`Runner::renders_on_request`]).
+    /// The delta stream and the metrics stay: the viewer plays the stream
+    /// while the job runs, and the metrics are measured on the frames.
+    ///
+    /// [`Runner::renders_on_request`]: crate::Runner::renders_on_request
+    pub fn stored_part(&self) -> JobSpec {
+        let mut spec = self.clone();
+        let render = match &mut spec {
+            JobSpec::Morph(m) => &mut m.render,
+            JobSpec::Sketch(s) => &mut s.render,
+        };
+        render.outputs.glb = false;
+        render.outputs.animated = false;
+        spec
+    }
+
     /// The ids of the trees the job reads.
     pub fn tree_ids(&self) -> Vec<&str> {
         match self {

@@ -1,0 +1,188 @@
+//! Plan-first jobs: a job stores its delta stream and metrics, and the
+//! per-frame GLBs and the animated GLB are rendered when first asked for,
+//! behind the routes and links a job that stored everything has.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde_json::json;
+use treemorph::jobs::testing::{TestRunner, instant_glb};
+use treemorph::pipeline::frame_instant;
+
+use crate::common::{error_code, files, spawn_with};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn jobs_store_their_stream_and_render_frames_and_the_animation_on_request() {
+    let runner = Arc::new(TestRunner::slow(Duration::from_millis(60)).plan_first());
+    let app = spawn_with(runner.clone(), |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 5).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+
+    // A published frame renders while the job runs.
+    app.wait_job(&id, |j| j["frames_ready"].as_u64() >= Some(2))
+        .await;
+    let r = app.get(&format!("/v1/jobs/{id}/frames/1.glb")).await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.bytes().await.unwrap(), instant_glb(frame_instant(1, 5)));
+    let (s, e) = app.get_json(&format!("/v1/jobs/{id}/frames/4.glb")).await;
+    if s != 200 {
+        assert_eq!((s, error_code(&e)), (409, "not_ready"));
+    }
+    let done = app.wait_status(&id, "succeeded").await;
+
+    // The job stores its stream and its metrics, nothing else (the
+    // per-frame stream records go right after the success), and links
+    // every output it was asked for.
+    let job_dir = app.dir.path().join("blobs").join("jobs").join(&id);
+    let names = || -> Vec<String> {
+        files(&job_dir)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_str().unwrap().to_owned())
+            .collect()
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while names().len() > 2 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(names(), ["metrics.json", "stream.tmd"]);
+    let links = &done["result"]["links"];
+    assert_eq!(links["frames"], format!("/v1/jobs/{id}/frames/{{n}}.glb"));
+    assert_eq!(links["animation"], format!("/v1/jobs/{id}/animation.glb"));
+    assert_eq!(links["stream"], format!("/v1/jobs/{id}/stream"));
+
+    // Every frame renders at its instant, with an ETag, 304 and ranges.
+    for n in 0..5 {
+        let r = app.get(&format!("/v1/jobs/{id}/frames/{n}.glb")).await;
+        assert_eq!(r.status(), 200, "frame {n}");
+        assert_eq!(r.headers()["content-type"], "model/gltf-binary");
+        assert_eq!(r.bytes().await.unwrap(), instant_glb(frame_instant(n, 5)));
+    }
+    let path = app.url(&format!("/v1/jobs/{id}/frames/2.glb"));
+    let r = app
+        .client
+        .get(&path)
+        .header("range", "bytes=0-3")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 206);
+    let len = instant_glb(0.5).len();
+    assert_eq!(
+        r.headers()["content-range"],
+        format!("bytes 0-3/{len}").as_str()
+    );
+    let etag = r.headers()["etag"].to_str().unwrap().to_owned();
+    assert_eq!(&r.bytes().await.unwrap()[..], b"glTF");
+    let r = app
+        .client
+        .get(&path)
+        .header("range", "bytes=900-")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 416);
+    let r = app
+        .client
+        .get(&path)
+        .header("if-none-match", &etag)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 304);
+    let (s, e) = app.get_json(&format!("/v1/jobs/{id}/frames/5.glb")).await;
+    assert_eq!((s, error_code(&e)), (404, "not_found"));
+
+    // The animated GLB renders once, in a run of its own, then is kept.
+    let runs = runner.runs();
+    let first = app.get(&format!("/v1/jobs/{id}/animation.glb")).await;
+    assert_eq!(first.status(), 200);
+    let first = first.bytes().await.unwrap();
+    assert_eq!(&first[..4], b"glTF");
+    let again = app.get(&format!("/v1/jobs/{id}/animation.glb")).await;
+    assert_eq!(again.bytes().await.unwrap(), first);
+    assert_eq!(runner.runs(), runs + 1);
+
+    // The stored stream and metrics serve as before.
+    let r = app.get(&format!("/v1/jobs/{id}/stream")).await;
+    assert_eq!(r.status(), 200);
+    assert!(!r.bytes().await.unwrap().is_empty());
+    let (s, _) = app.get_json(&format!("/v1/jobs/{id}/metrics.json")).await;
+    assert_eq!(s, 200);
+    app.stop().await;
+}
+
+/// Outputs a job did not ask for are not rendered either.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn outputs_left_out_of_the_request_stay_404() {
+    let runner = Arc::new(TestRunner::slow(Duration::ZERO).plan_first());
+    let app = spawn_with(runner, |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (s, job) = app
+        .post_json(
+            "/v1/jobs",
+            &json!({"kind": "morph", "source": a, "target": b, "frames": 3,
+                    "outputs": {"glb": false, "animated": false, "delta": true}}),
+        )
+        .await;
+    assert_eq!(s, 202, "{job}");
+    let id = job["id"].as_str().unwrap().to_owned();
+    let done = app.wait_status(&id, "succeeded").await;
+    assert!(done["result"]["links"]["frames"].is_null(), "{done}");
+    assert!(done["result"]["links"]["animation"].is_null(), "{done}");
+    for path in ["frames/0.glb", "animation.glb"] {
+        let (s, e) = app.get_json(&format!("/v1/jobs/{id}/{path}")).await;
+        assert_eq!((s, error_code(&e)), (404, "not_found"), "{path}");
+    }
+    app.stop().await;
+}
+
+/// A job run by another version of the renderer renders nothing more
+/// (its renders would not be the bytes it wrote): 410 `plan_outdated`
+/// saying how to re-run it. What it stored still serves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn jobs_of_another_render_version_answer_410_for_renders() {
+    let runner = Arc::new(TestRunner::slow(Duration::ZERO).plan_first());
+    let app = spawn_with(runner, |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 3).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    app.wait_status(&id, "succeeded").await;
+    let db = &app.state.services.db;
+    let (result,): (String,) = sqlx::query_as("SELECT result FROM jobs WHERE id = $1")
+        .bind(&id)
+        .fetch_one(&db.pool)
+        .await
+        .unwrap();
+    let mut result: serde_json::Value = serde_json::from_str(&result).unwrap();
+    assert_eq!(
+        result["render_version"],
+        treemorph::pipeline::RENDER_VERSION
+    );
+    result["render_version"] = json!(0);
+    sqlx::query("UPDATE jobs SET result = $1 WHERE id = $2")
+        .bind(result.to_string())
+        .bind(&id)
+        .execute(&db.writer)
+        .await
+        .unwrap();
+    for path in [
+        "frames/0.glb",
+        "animation.glb",
+        "frame.glb?t=0.5",
+        "animation.glb?keyframes=2",
+        "stream?frames=4",
+    ] {
+        let (s, e) = app.get_json(&format!("/v1/jobs/{id}/{path}")).await;
+        assert_eq!((s, error_code(&e)), (410, "plan_outdated"), "{path}: {e}");
+        let message = e["error"]["message"].as_str().unwrap();
+        assert!(message.contains("post the same request again"), "{message}");
+    }
+    for path in ["stream", "metrics.json"] {
+        assert_eq!(
+            app.get(&format!("/v1/jobs/{id}/{path}")).await.status(),
+            200
+        );
+    }
+    app.stop().await;
+}

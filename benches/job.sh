@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# The default job through the service on embedded defaults (SQLite, local
+# blobs): a 60-frame morph of a 5,000-branch maple into a 5,000-branch
+# conifer with every output requested. Prints, as `name: value` rows:
+#   stored_bytes          what the job keeps in the blob store once it has
+#                         succeeded (its stream records dropped)
+#   stored_files          the number of blobs it keeps
+#   post_to_succeeded_ms  POST /v1/jobs → status succeeded (median of 3)
+#   post_to_first_frame_ms  POST → the first SSE `frame` event (median of 3)
+#   first_render_ms       first byte of an uncached frames/30.glb,
+#                         frame.glb?t=0.375 and animation.glb
+#   cached_ms             the same requests again
+#
+# Usage: benches/job.sh            Environment: SIZE (branches, default
+# 5000), FRAMES (default 60), TREEMORPH_BIN (a binary to use instead of
+# building the release one). Talks to 127.0.0.1 only.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SIZE=${SIZE:-5000}
+FRAMES=${FRAMES:-60}
+if [ -n "${TREEMORPH_BIN:-}" ]; then
+  BIN=$TREEMORPH_BIN
+else
+  cargo build --release -p treemorph --bin treemorph >&2
+  BIN=$PWD/target/release/treemorph
+fi
+DATA=$(mktemp -d)
+OUT=$(mktemp)
+trap 'kill $PID 2>/dev/null || true; wait $PID 2>/dev/null || true; rm -rf "$DATA" "$OUT"' EXIT
+RUST_LOG=warn "$BIN" serve --listen 127.0.0.1:0 --data-dir "$DATA" >"$OUT" 2>"$DATA/log" &
+PID=$!
+for _ in $(seq 100); do grep -q listening "$OUT" 2>/dev/null && break; sleep 0.1; done
+BASE=$(sed -n 's/^listening on //p' "$OUT")
+id() { sed -n 's/^{"id":"\([0-9a-f]*\)".*/\1/p'; }
+tree() { curl -s -XPOST "$BASE/v1/trees/generate" -H 'content-type: application/json' -d "{\"preset\":\"$1\",\"seed\":$2,\"size\":$SIZE}" | id; }
+A=$(tree maple 1)
+B=$(tree conifer 2)
+job() { curl -s -XPOST "$BASE/v1/jobs" -H 'content-type: application/json' -d "{\"kind\":\"morph\",\"source\":\"$A\",\"target\":\"$B\",\"frames\":$FRAMES}" | id; }
+status() { curl -s "$BASE/v1/jobs/$1" | sed -n 's/.*"status":"\([a-z]*\)".*/\1/p'; }
+median() { printf '%s\n' "$@" | sort -n | sed -n "$(( ($# + 1) / 2 ))p"; }
+ms_since() { echo $(( ($(date +%s%N) - $1) / 1000000 )); }
+
+# A warm-up job, so the trees are in the worker's cache as in steady use.
+J=$(job); while [ "$(status "$J")" != succeeded ]; do sleep 0.01; done
+
+succeeded=(); first=()
+for _ in 1 2 3; do
+  t0=$(date +%s%N)
+  J=$(job)
+  { curl -sN "$BASE/v1/jobs/$J/events" || true; } | grep -m1 -q '^event: frame'
+  first+=($(ms_since "$t0"))
+  while [ "$(status "$J")" != succeeded ]; do sleep 0.005; done
+  succeeded+=($(ms_since "$t0"))
+done
+echo "post_to_succeeded_ms: $(median "${succeeded[@]}") (all: ${succeeded[*]})"
+echo "post_to_first_frame_ms: $(median "${first[@]}") (all: ${first[*]})"
+
+# The stream records go right after the success: wait for them.
+dir="$DATA/blobs/jobs/$J"
+for _ in $(seq 100); do [ -z "$(find "$dir" -path '*/stream/*' -type f)" ] && break; sleep 0.05; done
+echo "stored_bytes: $(du -sb "$dir" | cut -f1)"
+echo "stored_files: $(find "$dir" -type f | wc -l)"
+
+for pass in first_render_ms cached_ms; do
+  row=""
+  for q in frames/30.glb 'frame.glb?t=0.375' animation.glb; do
+    s=$(curl -s -o /dev/null -w '%{time_starttransfer}' "$BASE/v1/jobs/$J/$q")
+    row="$row $q=$(awk "BEGIN{printf \"%.0f\", $s * 1000}")"
+  done
+  echo "$pass:$row"
+done

@@ -39,6 +39,7 @@ use treemorph_api::ErrorCode;
 use treemorph_gltf::animated::{AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::frames::{EncodeError, FrameMeshes, max_radii};
+use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
@@ -389,12 +390,23 @@ impl WrittenSeries {
 
 /// The output-level plausibility check of each frame as written
 /// (`treemorph-verify`).
+///
+/// It runs on the second core while the next frame is computed, encoded
+/// and published ([`render`]): it is the most expensive step of a frame
+/// (more than half of a 5,000-branch morph's frame time), and a job
+/// succeeds sooner when it overlaps the rest. So [`OutputCheck::take`]
+/// copies the positions and indices just written (a few milliseconds of
+/// memcpy at most) and [`OutputCheck::check`] measures the copy later.
 struct OutputCheck {
     check: Plausibility,
     options: PlausibilityOptions,
     /// Meshes of its own, for jobs that write neither per-frame GLBs nor
     /// the stream (only the animated GLB): the per-frame GLB's geometry.
     own: Option<FrameMeshes>,
+    /// The last frame's written meshes: positions and indices only.
+    branches: MeshBuffers,
+    leaves: MeshBuffers,
+    shape: LeafShape,
 }
 
 impl OutputCheck {
@@ -403,19 +415,24 @@ impl OutputCheck {
         probed: &Probed,
         encoders: &Encoders,
     ) -> Result<OutputCheck, JobError> {
+        let mesh = FrameGlbOptions::default().mesh;
         let own = (encoders.glb.is_none() && encoders.stream.is_none())
-            .then(|| FrameMeshes::new(topology, &probed.radii, &FrameGlbOptions::default().mesh))
+            .then(|| FrameMeshes::new(topology, &probed.radii, &mesh))
             .transpose()
             .map_err(encode)?;
         Ok(OutputCheck {
             check: Plausibility::new(),
             options: PlausibilityOptions::default(),
             own,
+            branches: MeshBuffers::default(),
+            leaves: MeshBuffers::default(),
+            shape: mesh.leaf_shape,
         })
     }
 
-    /// Checks `frame`, just encoded by `encoders`, on the meshes written.
-    fn measure(&mut self, frame: &Frame, encoders: &Encoders) -> Result<Report, JobError> {
+    /// Copies the meshes `encoders` just wrote for `frame` (or meshes the
+    /// frame, when no encoder does).
+    fn take(&mut self, frame: &Frame, encoders: &Encoders) -> Result<(), JobError> {
         if let Some(own) = &mut self.own {
             own.mesh(frame).map_err(encode)?;
         }
@@ -425,10 +442,26 @@ impl OutputCheck {
             (None, None, Some(own)) => own,
             (None, None, None) => return Err(JobError::internal("no meshes to check")),
         };
-        self.check
-            .check(&MeshView::of_frame_meshes(meshes), &self.options)
-            .map_err(|e| JobError::internal(format_args!("checking frame {}: {e}", frame.t)))
+        copy_geometry(&mut self.branches, meshes.branches().buffers());
+        copy_geometry(&mut self.leaves, meshes.leaves().buffers());
+        self.shape = meshes.leaves().shape();
+        Ok(())
     }
+
+    /// Checks the meshes of the last [`OutputCheck::take`].
+    fn check(&mut self) -> Result<Report, JobError> {
+        let view = MeshView::of_buffers(&self.branches, &self.leaves, self.shape);
+        self.check
+            .check(&view, &self.options)
+            .map_err(|e| JobError::internal(format_args!("checking a frame: {e}")))
+    }
+}
+
+/// Copies what the check reads (positions and indices), reusing `to`'s
+/// allocations.
+fn copy_geometry(to: &mut MeshBuffers, from: &MeshBuffers) {
+    to.positions.clone_from(&from.positions);
+    to.indices.clone_from(&from.indices);
 }
 
 /// What [`render`] produced besides what it published.
@@ -609,11 +642,14 @@ impl Encoders {
 
 /// Computes the spec's frames with `eval`, publishes them through `sink`
 /// in every requested format, and measures each with `measure` (given the
-/// output-level check of the frame as written).
+/// output-level check of the frame as written). Frame `i`'s check runs
+/// beside frame `i + 1`'s evaluation and encoding ([`OutputCheck`]), so
+/// `measure` sees frame `i` once frame `i + 1` is computed, and the last
+/// frame after the loop; the metrics are the same, in the same order.
 fn render(
     topology: &FrameTopology,
     spec: &RenderSpec,
-    mut eval: impl FnMut(f32, &mut Frame),
+    mut eval: impl FnMut(f32, &mut Frame) + Send,
     mut measure: impl FnMut(&Frame, &Report),
     sink: &mut dyn JobSink,
 ) -> Result<Rendered, JobError> {
@@ -624,15 +660,29 @@ fn render(
     let mut output_check = OutputCheck::new(topology, &probed, &encoders)?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
+    // The frame whose copy waits for its check (see `OutputCheck`).
+    let mut checked = Frame::default();
+    let mut waiting = false;
     for i in 0..frames {
         if sink.cancelled() {
             return Err(JobError::cancelled());
         }
         let t = crate::frame_instant(i, frames);
         let started = Instant::now();
-        eval(t, &mut frame);
-        let eval_ms = ms_since(started);
-        let (header, glb) = encoders.encode(i, &frame, &mut record)?;
+        let (report, encoded) = rayon::join(
+            || waiting.then(|| output_check.check()).transpose(),
+            || {
+                eval(t, &mut frame);
+                let eval_ms = ms_since(started);
+                encoders
+                    .encode(i, &frame, &mut record)
+                    .map(|out| (out, eval_ms))
+            },
+        );
+        if let Some(report) = report? {
+            measure(&checked, &report);
+        }
+        let ((header, glb), eval_ms) = encoded?;
         let encoded_ms = ms_since(started);
         let delta = publish_record(i, header, &record, &mut whole_stream, sink)?;
         sink.frame(FrameOutput {
@@ -643,10 +693,9 @@ fn render(
         })
         .map_err(stored)?;
         let published_ms = ms_since(started);
-        // Metrics and the animated GLB's keyframes wait until the frame is
-        // out: clients see it sooner.
-        let written = output_check.measure(&frame, &encoders)?;
-        measure(&frame, &written);
+        output_check.take(&frame, &encoders)?;
+        checked.clone_from(&frame);
+        waiting = true;
         encoders.keyframe(i, &frame)?;
         tracing::debug!(
             frame = i,
@@ -656,6 +705,10 @@ fn render(
             "frame published"
         );
         sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
+    }
+    if waiting {
+        let report = output_check.check()?;
+        measure(&checked, &report);
     }
     let files = encoders.finish(whole_stream, sink)?;
     Ok(Rendered { frames, files })

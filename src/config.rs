@@ -130,6 +130,11 @@ pub struct Settings {
     /// once).
     #[arg(long, env = "TREEMORPH_RENDER_CACHE_MB", default_value_t = 256)]
     pub render_cache_mb: u64,
+    /// Blob-store space for outputs rendered on request, in MiB, over the
+    /// whole store: renders survive restarts and are shared by every API
+    /// process; the least recently used go first. 0 stores none.
+    #[arg(long, env = "TREEMORPH_RENDER_STORE_MB", default_value_t = 4096)]
+    pub render_store_mb: u64,
     /// Storage quota per API key, in MiB: the bytes its trees and job
     /// outputs take. An upload that would exceed it, or a job while the
     /// key is at it, answers 507 `quota_exceeded`. 0: no quota.

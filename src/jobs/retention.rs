@@ -55,6 +55,8 @@ pub struct Swept {
     pub spool_files: u64,
     /// Records of done webhook deliveries whose job is gone.
     pub webhook_records: u64,
+    /// Records of stored renders whose job is gone.
+    pub render_records: u64,
 }
 
 /// Deletes every blob a job owns. Failures are logged: the orphan sweep
@@ -91,11 +93,14 @@ pub async fn sweep(services: &Services) -> anyhow::Result<Swept> {
     };
     let orphan_prefixes = sweep_orphans(&services.db, &services.blobs, grace).await?;
     let webhook_records = super::webhooks::purge_done_without_job(&services.db).await?;
+    let render_records =
+        crate::store::renders::RenderStore::purge_without_job(&services.db).await?;
     Ok(Swept {
         expired_jobs,
         orphan_prefixes,
         spool_files,
         webhook_records,
+        render_records,
     })
 }
 

@@ -112,7 +112,13 @@ impl AppState {
         // Workers read the cache for jobs, API processes for renders on
         // request (`frame.glb?t=`).
         let trees = TreeCache::new(settings.tree_cache_mb.saturating_mul(1 << 20));
-        let renders = renders::RenderCache::new(settings.render_cache_mb.saturating_mul(1 << 20));
+        let store = crate::store::renders::RenderStore::new(
+            blobs.clone(),
+            db.clone(),
+            settings.render_store_mb.saturating_mul(1 << 20),
+        );
+        let renders = renders::RenderCache::new(settings.render_cache_mb.saturating_mul(1 << 20))
+            .with_store(store);
         Ok(AppState {
             services: Services {
                 trees: Arc::new(trees),

@@ -4,13 +4,15 @@
 //! within `--render-cache-mb`.
 //!
 //! # Choices
-//! - **In memory, per process.** A render is a deterministic function of
-//!   the job's attempt and the instant, and costs tens of milliseconds, so
-//!   a cache here saves the CPU of repeated requests (a viewer scrubbing
-//!   back and forth, several clients on one job) without writing a byte to
-//!   the blob store; a process that restarts renders again. Nothing is
-//!   cached before it is complete, so a kill -9 during a render leaves no
-//!   partial entry.
+//! - **Two tiers.** A render is a deterministic function of the job's
+//!   attempt and its key, and costs tens of milliseconds (a frame) to
+//!   seconds (an animated GLB). Memory, per process, serves repeated
+//!   requests (a viewer scrubbing back and forth, several clients on one
+//!   job); behind it the blob store ([`RenderStore`], `--render-store-mb`)
+//!   keeps renders across restarts and for every API process of a fleet.
+//!   A render is stored in the background once made. Nothing is cached
+//!   before it is complete, so a kill -9 during a render leaves no partial
+//!   entry in either tier.
 //! - **One render per key at a time.** The first request for a key renders;
 //!   concurrent requests for it wait for that render instead of starting
 //!   their own (quick_cache's placeholder guards). A failed render caches
@@ -28,6 +30,7 @@ use quick_cache::Weighter;
 use quick_cache::sync::Cache;
 
 use crate::error::ApiError;
+use crate::store::renders::RenderStore;
 
 #[derive(Clone, Debug)]
 struct ByLen;
@@ -46,6 +49,7 @@ const TYPICAL_RENDER_BYTES: u64 = 8 << 20;
 pub struct RenderCache {
     entries: Cache<String, Bytes, ByLen>,
     budget: u64,
+    store: Option<RenderStore>,
 }
 
 impl std::fmt::Debug for RenderCache {
@@ -66,7 +70,14 @@ impl RenderCache {
             // budget keeps nothing past the placeholder's life.
             entries: Cache::with_weighter(items, budget.max(1), ByLen),
             budget,
+            store: None,
         }
+    }
+
+    /// This cache with `store` as its second tier.
+    pub fn with_store(mut self, store: RenderStore) -> RenderCache {
+        self.store = Some(store);
+        self
     }
 
     /// The render of `key`: cached, being rendered by another request
@@ -76,8 +87,24 @@ impl RenderCache {
         key: &str,
         render: impl Future<Output = Result<Vec<u8>, ApiError>>,
     ) -> Result<Bytes, ApiError> {
+        let store = self.store.clone();
         self.entries
-            .get_or_insert_async(key, async { render.await.map(Bytes::from) })
+            .get_or_insert_async(key, async {
+                if let Some(stored) = match &store {
+                    Some(store) => store.load(key).await,
+                    None => None,
+                } {
+                    return Ok(stored);
+                }
+                let bytes = Bytes::from(render.await?);
+                if let Some(store) = store {
+                    // In the background: the answer does not wait for
+                    // the write.
+                    let (key, bytes) = (key.to_owned(), bytes.clone());
+                    tokio::spawn(async move { store.save(&key, bytes).await });
+                }
+                Ok(bytes)
+            })
             .await
     }
 }

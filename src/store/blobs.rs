@@ -221,6 +221,14 @@ impl Blobs {
         Ok(result.into_stream().map(|r| r.map_err(BlobError)).boxed())
     }
 
+    /// Deletes the blob `key` (nothing when it does not exist).
+    pub async fn delete(&self, key: &str) -> Result<(), BlobError> {
+        match self.store.delete(&Path::from(key)).await {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(e.into()),
+        }
+    }
+
     /// Deletes every blob under `prefix` (a "directory" key).
     pub async fn delete_prefix(&self, prefix: &str) -> Result<(), BlobError> {
         let mut listing = self.store.list(Some(&Path::from(prefix)));

@@ -4,7 +4,8 @@
 //! # Layout
 //! - The **database** (SQLite by default, PostgreSQL for scale-out) holds
 //!   the `trees` and `jobs` tables (the durable job queue, see
-//!   [`crate::jobs::queue`]) and `webhook_deliveries`. One code path serves
+//!   [`crate::jobs::queue`]), `webhook_deliveries` and `renders` (see
+//!   [`renders`]). One code path serves
 //!   both databases through sqlx's `Any` driver: `$N` placeholders, ids as
 //!   TEXT (32 lowercase hex digits, UUIDv7 so they sort by creation time),
 //!   times as INTEGER milliseconds, JSON documents as TEXT. Migrations are
@@ -23,6 +24,7 @@
 
 mod blobs;
 mod db;
+pub mod renders;
 pub mod trees;
 
 pub use blobs::{BlobError, Blobs};

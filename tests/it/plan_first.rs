@@ -8,6 +8,7 @@ use std::time::Duration;
 use serde_json::json;
 use treemorph::jobs::testing::{TestRunner, instant_glb};
 use treemorph::pipeline::frame_instant;
+use treemorph::store::renders::RenderStore;
 
 use crate::common::{error_code, files, spawn_with};
 
@@ -35,9 +36,11 @@ async fn jobs_store_their_stream_and_render_frames_and_the_animation_on_request(
     // per-frame stream records go right after the success), and links
     // every output it was asked for.
     let job_dir = app.dir.path().join("blobs").join("jobs").join(&id);
+    // (Renders kept in the blob store are a cache beside them.)
     let names = || -> Vec<String> {
         files(&job_dir)
             .iter()
+            .filter(|p| !p.components().any(|c| c.as_os_str() == "renders"))
             .map(|p| p.file_name().unwrap().to_str().unwrap().to_owned())
             .collect()
     };
@@ -184,5 +187,82 @@ async fn jobs_of_another_render_version_answer_410_for_renders() {
             200
         );
     }
+    app.stop().await;
+}
+
+/// A render is stored under its job in the blob store: another process
+/// (or this one after a restart) serves it without rendering, and it goes
+/// with the job.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn renders_are_kept_in_the_blob_store_for_every_process() {
+    let first_runner = Arc::new(TestRunner::slow(Duration::ZERO).plan_first());
+    let first = spawn_with(first_runner.clone(), |_| {}).await;
+    let (a, b) = (first.tree(1).await, first.tree(2).await);
+    let (_, job) = first.morph(&a, &b, 3).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    first.wait_status(&id, "succeeded").await;
+    let path = format!("/v1/jobs/{id}/frames/1.glb");
+    let made = first.get(&path).await.bytes().await.unwrap();
+    assert_eq!(first_runner.instants(), 1);
+    let job_dir = first.dir.path().join("blobs").join("jobs").join(&id);
+    let stored = || {
+        files(&job_dir)
+            .iter()
+            .any(|p| p.ends_with("renders/frames/000001.glb"))
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !stored() && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(stored(), "the render was not stored: {:?}", files(&job_dir));
+
+    let settings = first.state.settings().clone();
+    let second_runner = Arc::new(TestRunner::slow(Duration::ZERO).plan_first());
+    let second = spawn_with(second_runner.clone(), |s| {
+        s.database_url = Some(settings.database_url());
+        s.blob_url = Some(settings.blob_url().unwrap());
+    })
+    .await;
+    assert_eq!(second.get(&path).await.bytes().await.unwrap(), made);
+    assert_eq!(second_runner.instants(), 0, "the second process rendered");
+
+    assert_eq!(first.delete(&format!("/v1/jobs/{id}")).await.0, 204);
+    assert!(files(&job_dir).is_empty());
+    let swept = treemorph::jobs::retention::sweep(&first.state.services)
+        .await
+        .unwrap();
+    assert_eq!(swept.render_records, 1, "{swept:?}");
+    second.stop().await;
+    first.stop().await;
+}
+
+/// The stored renders stay within their cap: the least recently used go
+/// first, blob and record.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stored_renders_past_the_cap_evict_the_least_recently_used() {
+    let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |_| {}).await;
+    let services = &app.state.services;
+    let store = RenderStore::new(services.blobs.clone(), services.db.clone(), 50);
+    let key = |n: u32| format!("jobs/j/t/at/{n}");
+    let render = |n: u8| bytes::Bytes::from(vec![n; 20]);
+    for n in 1..=2u8 {
+        store.save(&key(n.into()), render(n)).await;
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // Using render 1 makes render 2 the least recently used.
+    assert_eq!(store.load(&key(1)).await, Some(render(1)));
+    tokio::time::sleep(Duration::from_millis(5)).await;
+    store.save(&key(3), render(3)).await;
+    assert_eq!(store.load(&key(2)).await, None);
+    assert_eq!(store.load(&key(1)).await, Some(render(1)));
+    assert_eq!(store.load(&key(3)).await, Some(render(3)));
+    let (rows,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM renders")
+        .fetch_one(&services.db.pool)
+        .await
+        .unwrap();
+    assert_eq!(rows, 2);
+    // Larger than the cap: not stored at all.
+    store.save(&key(4), bytes::Bytes::from(vec![4; 60])).await;
+    assert_eq!(store.load(&key(4)).await, None);
     app.stop().await;
 }

@@ -253,15 +253,11 @@ async fn delete_superseded(blobs: &crate::store::Blobs, id: &str, token: &str) {
 /// the per-key quota; a failure only leaves the job counted as 0 bytes.
 /// Deletes a succeeded job's per-frame stream records: they served live
 /// viewers while the job ran, and `stream.tmd` holds the same bytes whole
-/// (live viewers switch to it at the success: `crate::server::stream`).
-/// Storing both would double the largest output a job keeps.
+/// (live viewers switch to it at the success: `crate::server::stream`);
+/// storing both would double the largest output a job keeps. A job that
+/// asked for no stream has empty records, which serve nobody.
 async fn drop_stream_records(services: &Services, row: &JobRow, token: &str) {
-    let complete = row.status == JobStatus::Succeeded
-        && row
-            .result
-            .as_ref()
-            .is_some_and(|r| r.files.iter().any(|f| f == "stream.tmd"));
-    if !complete {
+    if row.status != JobStatus::Succeeded {
         return;
     }
     let records = format!("{}/stream", queue::attempt_prefix(&row.id, token));

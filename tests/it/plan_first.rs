@@ -132,6 +132,17 @@ async fn outputs_left_out_of_the_request_stay_404() {
     let id = job["id"].as_str().unwrap().to_owned();
     let done = app.wait_status(&id, "succeeded").await;
     assert!(done["result"]["links"]["frames"].is_null(), "{done}");
+    // Its (empty) stream records go after the success too.
+    let job_dir = app.dir.path().join("blobs").join("jobs").join(&id);
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while files(&job_dir).len() > 2 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let names: Vec<_> = files(&job_dir)
+        .iter()
+        .map(|p| p.file_name().unwrap().to_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(names, ["metrics.json", "stream.tmd"]);
     assert!(done["result"]["links"]["animation"].is_null(), "{done}");
     for path in ["frames/0.glb", "animation.glb"] {
         let (s, e) = app.get_json(&format!("/v1/jobs/{id}/{path}")).await;
@@ -204,17 +215,27 @@ async fn renders_are_kept_in_the_blob_store_for_every_process() {
     let path = format!("/v1/jobs/{id}/frames/1.glb");
     let made = first.get(&path).await.bytes().await.unwrap();
     assert_eq!(first_runner.instants(), 1);
+    // Stored in the background: the blob first, then its record.
     let job_dir = first.dir.path().join("blobs").join("jobs").join(&id);
-    let stored = || {
-        files(&job_dir)
-            .iter()
-            .any(|p| p.ends_with("renders/frames/000001.glb"))
+    let db = &first.state.services.db;
+    let records = || async {
+        let (n,): (i64,) = sqlx::query_as("SELECT COUNT(*) FROM renders")
+            .fetch_one(&db.pool)
+            .await
+            .unwrap();
+        n
     };
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while !stored() && std::time::Instant::now() < deadline {
+    while records().await == 0 && std::time::Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    assert!(stored(), "the render was not stored: {:?}", files(&job_dir));
+    let stored = files(&job_dir);
+    assert!(
+        stored
+            .iter()
+            .any(|p| p.ends_with("renders/frames/000001.glb")),
+        "the render was not stored: {stored:?}"
+    );
 
     let settings = first.state.settings().clone();
     let second_runner = Arc::new(TestRunner::slow(Duration::ZERO).plan_first());
@@ -241,9 +262,21 @@ async fn renders_are_kept_in_the_blob_store_for_every_process() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stored_renders_past_the_cap_evict_the_least_recently_used() {
     let app = spawn_with(Arc::new(TestRunner::slow(Duration::ZERO)), |_| {}).await;
+    // Renders of a job that exists, under its published attempt (a sweep
+    // drops the records of other jobs, and an attempt deletes the blobs of
+    // the job's other attempts when it starts).
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 2).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    app.wait_status(&id, "succeeded").await;
     let services = &app.state.services;
+    let (token,): (String,) = sqlx::query_as("SELECT published_token FROM jobs WHERE id = $1")
+        .bind(&id)
+        .fetch_one(&services.db.pool)
+        .await
+        .unwrap();
     let store = RenderStore::new(services.blobs.clone(), services.db.clone(), 50);
-    let key = |n: u32| format!("jobs/j/t/at/{n}");
+    let key = |n: u32| format!("jobs/{id}/{token}/at/{n}");
     let render = |n: u8| bytes::Bytes::from(vec![n; 20]);
     for n in 1..=2u8 {
         store.save(&key(n.into()), render(n)).await;

@@ -167,10 +167,13 @@ pub async fn file(
     what.check(row.frames, state.settings().max_frames)?;
     check_version(row)?;
     let request = what.request(&row.request)?;
+    // Unmeasured: the job's own metrics are stored; these would be thrown
+    // away.
     let spec = state
         .services
         .runner
-        .check(&request, &state.settings().limits())?;
+        .check(&request, &state.settings().limits())?
+        .unmeasured();
     state
         .renders
         .get_or_render(&what.key(prefix), run(state, spec, what))

@@ -203,8 +203,19 @@ fn run_morph(
     if let Some(e) = measure_error {
         return Err(JobError::internal(format_args!("measuring frames: {e}")));
     }
-    let (metrics, summary) = series.into_json(spec.render.frames, plan.endpoint_error());
+    let (metrics, summary) = if spec.render.measured {
+        series.into_json(spec.render.frames, plan.endpoint_error())
+    } else {
+        unmeasured(spec.render.frames)
+    };
     finish(outcome, metrics, summary, sink)
+}
+
+/// The metrics of an [unmeasured](crate::JobSpec::unmeasured) run: the
+/// frame count, and that nothing was measured.
+fn unmeasured(frames: u32) -> (Value, Value) {
+    let summary = json!({"frames": frames, "measured": false});
+    (summary.clone(), summary)
 }
 
 #[derive(Default)]
@@ -281,9 +292,13 @@ fn run_sketch(
         |frame, written| series.push(meter.measure(frame), written),
         sink,
     )?;
-    let (metrics, summary) = series
-        .into_json(spec.render.frames)
-        .ok_or_else(|| JobError::internal("no frame was measured"))?;
+    let (metrics, summary) = if spec.render.measured {
+        series
+            .into_json(spec.render.frames)
+            .ok_or_else(|| JobError::internal("no frame was measured"))?
+    } else {
+        unmeasured(spec.render.frames)
+    };
     finish(outcome, metrics, summary, sink)
 }
 
@@ -642,7 +657,8 @@ impl Encoders {
 
 /// Computes the spec's frames with `eval`, publishes them through `sink`
 /// in every requested format, and measures each with `measure` (given the
-/// output-level check of the frame as written). Frame `i`'s check runs
+/// output-level check of the frame as written) unless the spec is
+/// [unmeasured](crate::JobSpec::unmeasured). Frame `i`'s check runs
 /// beside frame `i + 1`'s evaluation and encoding ([`OutputCheck`]), so
 /// `measure` sees frame `i` once frame `i + 1` is computed, and the last
 /// frame after the loop; the metrics are the same, in the same order.
@@ -657,7 +673,10 @@ fn render(
     let mut frame = Frame::default();
     let probed = probe(&mut eval, &mut frame);
     let mut encoders = Encoders::new(topology, spec, &probed)?;
-    let mut output_check = OutputCheck::new(topology, &probed, &encoders)?;
+    let mut output_check = spec
+        .measured
+        .then(|| OutputCheck::new(topology, &probed, &encoders))
+        .transpose()?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
     // The frame whose copy waits for its check (see `OutputCheck`).
@@ -670,7 +689,10 @@ fn render(
         let t = crate::frame_instant(i, frames);
         let started = Instant::now();
         let (report, encoded) = rayon::join(
-            || waiting.then(|| output_check.check()).transpose(),
+            || match &mut output_check {
+                Some(check) if waiting => check.check().map(Some),
+                _ => Ok(None),
+            },
             || {
                 eval(t, &mut frame);
                 let eval_ms = ms_since(started);
@@ -693,9 +715,11 @@ fn render(
         })
         .map_err(stored)?;
         let published_ms = ms_since(started);
-        output_check.take(&frame, &encoders)?;
-        checked.clone_from(&frame);
-        waiting = true;
+        if let Some(check) = &mut output_check {
+            check.take(&frame, &encoders)?;
+            checked.clone_from(&frame);
+            waiting = true;
+        }
         encoders.keyframe(i, &frame)?;
         tracing::debug!(
             frame = i,
@@ -706,8 +730,10 @@ fn render(
         );
         sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
     }
-    if waiting {
-        let report = output_check.check()?;
+    if let Some(check) = &mut output_check
+        && waiting
+    {
+        let report = check.check()?;
         measure(&checked, &report);
     }
     let files = encoders.finish(whole_stream, sink)?;

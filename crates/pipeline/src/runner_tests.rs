@@ -411,6 +411,26 @@ fn a_frame_at_an_instant_is_the_jobs_frame_there() {
     }
 }
 
+/// An unmeasured sketch writes the same animated GLB as a measured one.
+#[test]
+fn an_unmeasured_sketch_writes_the_same_animation() {
+    let trees = HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]);
+    let spec = JobSpec::parse(&heart_request(4), &Limits::default()).unwrap();
+    let run = |spec: &JobSpec| {
+        let mut sink = MemorySink::default();
+        let input = JobInput {
+            spec,
+            trees: &trees,
+        };
+        PipelineRunner::default().run(&input, &mut sink).unwrap();
+        sink
+    };
+    let measured = run(&spec);
+    let unmeasured = run(&spec.unmeasured());
+    assert!(unmeasured.files["animation.glb"] == measured.files["animation.glb"]);
+    assert!(unmeasured.files["stream.tmd"] == measured.files["stream.tmd"]);
+}
+
 /// What a plan-first service stores and renders later is what one run of
 /// the whole job writes: the stored part's stream is the full run's, a run
 /// for the animated GLB alone writes the full run's animated GLB, and the
@@ -449,6 +469,11 @@ fn frames_render_again_byte_for_byte() {
         JobSpec::parse(&JobRequest::Morph(animated_only), &Limits::default()).unwrap();
     let animated = run(&animated_spec);
     assert!(animated.files["animation.glb"] == full.files["animation.glb"]);
+    // Renders on request skip the measuring, not a byte of the output.
+    let unmeasured = run(&animated_spec.unmeasured());
+    assert!(unmeasured.files["animation.glb"] == full.files["animation.glb"]);
+    let unmeasured_stream = run(&spec.stored_part().unmeasured());
+    assert!(unmeasured_stream.files["stream.tmd"] == full.files["stream.tmd"]);
     let input = JobInput {
         spec: &spec,
         trees: &trees,

@@ -93,6 +93,10 @@ pub struct RenderSpec {
     pub keyframes: u32,
     /// How the animated GLB stores its morph targets.
     pub encoding: AnimatedEncoding,
+    /// Whether the run measures its frames: the output-level check and
+    /// the per-frame series of `metrics.json`. Always true for a parsed
+    /// request; renders on request turn it off ([`JobSpec::unmeasured`]).
+    pub measured: bool,
 }
 
 /// A morph job, validated.
@@ -184,6 +188,20 @@ impl JobSpec {
         };
         render.outputs.glb = false;
         render.outputs.animated = false;
+        spec
+    }
+
+    /// The same job without measuring its frames: for a render on
+    /// request, whose metrics nobody reads (the job's own are stored).
+    /// Every output byte but `metrics.json` stays the same; the
+    /// output-level check and the metrics' per-frame series are most of a
+    /// frame's cost.
+    pub fn unmeasured(&self) -> JobSpec {
+        let mut spec = self.clone();
+        match &mut spec {
+            JobSpec::Morph(m) => m.render.measured = false,
+            JobSpec::Sketch(s) => s.render.measured = false,
+        }
         spec
     }
 
@@ -328,6 +346,7 @@ fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, Spec
             AnimationEncoding::Quantized => AnimatedEncoding::Quantized,
             AnimationEncoding::Meshopt => AnimatedEncoding::Meshopt,
         },
+        measured: true,
     })
 }
 

@@ -28,20 +28,35 @@ pub async fn serve(
     request: &HeaderMap,
     what: &str,
 ) -> Result<Response, ApiError> {
+    serve_if_stored(blobs, key, content_type, request)
+        .await?
+        .ok_or_else(|| ApiError::not_found(what))
+}
+
+/// Serves the blob `key`, or `None` when it is not stored (for outputs
+/// that are rendered when not stored).
+pub async fn serve_if_stored(
+    blobs: &Blobs,
+    key: &str,
+    content_type: &'static str,
+    request: &HeaderMap,
+) -> Result<Option<Response>, ApiError> {
     let Some(len) = blobs.size(key).await? else {
-        return Err(ApiError::not_found(what));
+        return Ok(None);
     };
     let (builder, range) = match plan(key, request, len) {
         Planned::Send(builder, range) => (builder, range),
-        Planned::Done(response) => return Ok(response),
+        Planned::Done(response) => return Ok(Some(response)),
     };
     let length = range.as_ref().map_or(len, |r| r.end - r.start);
     let stream = blobs.stream(key, range).await?;
-    Ok(builder
-        .header(header::CONTENT_TYPE, content_type)
-        .header(header::CONTENT_LENGTH, length)
-        .body(Body::from_stream(stream))
-        .expect("valid response"))
+    Ok(Some(
+        builder
+            .header(header::CONTENT_TYPE, content_type)
+            .header(header::CONTENT_LENGTH, length)
+            .body(Body::from_stream(stream))
+            .expect("valid response"),
+    ))
 }
 
 /// Serves `bytes` made on request under the ETag of `key` (a render is a

@@ -443,8 +443,8 @@ pub async fn resampled(
     headers: &HeaderMap,
 ) -> Result<Response, ApiError> {
     let prefix = succeeded_prefix(row, "output")?;
-    let key = what.key(&prefix);
-    let render = resample::file(state, row, &prefix, what);
+    let (key, spec) = resample::prepare(state, row, &prefix, what)?;
+    let render = resample::file(state, row, &key, spec, what);
     serve_rendered(headers, &key, content_type, render).await
 }
 
@@ -528,15 +528,13 @@ pub async fn frame(
         _ => return Err(not_available(&row, "frame")),
     };
     let key = queue::frame_glb_key(&prefix, n);
-    if !row.requested_outputs().glb || state.services.blobs.size(&key).await?.is_some() {
-        return blob::serve(
-            &state.services.blobs,
-            &key,
-            "model/gltf-binary",
-            &headers,
-            "frame (per-frame GLBs were not requested)",
-        )
-        .await;
+    let blobs = &state.services.blobs;
+    if !row.requested_outputs().glb {
+        let what = "frame (per-frame GLBs were not requested)";
+        return blob::serve(blobs, &key, "model/gltf-binary", &headers, what).await;
+    }
+    if let Some(stored) = blob::serve_if_stored(blobs, &key, "model/gltf-binary", &headers).await? {
+        return Ok(stored);
     }
     let t = crate::pipeline::frame_instant(n, row.frames);
     let render = state
@@ -559,28 +557,19 @@ async fn file(
     match row.published_prefix() {
         Some(prefix) if row.status == JobStatus::Succeeded && produced => {
             let key = queue::file_key(&prefix, name);
-            if name == "animation.glb" && state.services.blobs.size(&key).await?.is_none() {
-                return rendered_animation(state, row, headers).await;
+            let blobs = &state.services.blobs;
+            match blob::serve_if_stored(blobs, &key, content_type, headers).await? {
+                Some(stored) => Ok(stored),
+                None if name == "animation.glb" => {
+                    let what = resample::Resample::Animation;
+                    resampled(state, row, what, content_type, headers).await
+                }
+                None => Err(ApiError::not_found(name)),
             }
-            blob::serve(&state.services.blobs, &key, content_type, headers, name).await
         }
         _ if row.status == JobStatus::Succeeded => Err(ApiError::not_found(name)),
         _ => Err(not_available(row, name)),
     }
-}
-
-/// The animated GLB of a plan-first job, rendered on request: the
-/// re-sampled animation at the job's own keyframe count (one render and
-/// one cache entry serve both).
-async fn rendered_animation(
-    state: &AppState,
-    row: &JobRow,
-    headers: &HeaderMap,
-) -> Result<Response, ApiError> {
-    let spec =
-        crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
-    let what = resample::Resample::Keyframes(spec.render().keyframes);
-    resampled(state, row, what, "model/gltf-binary", headers).await
 }
 
 /// Get the animated GLB of the whole sequence.

@@ -29,6 +29,9 @@ use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, JobSpec, Runner,
 /// What to re-sample.
 #[derive(Clone, Copy, Debug)]
 pub enum Resample {
+    /// The animated GLB with the job's own keyframes (a plan-first job's
+    /// `animation.glb`).
+    Animation,
     /// The animated GLB with this many keyframes.
     Keyframes(u32),
     /// The delta stream with this many frames.
@@ -39,14 +42,17 @@ impl Resample {
     /// The file the run produces.
     fn file(self) -> &'static str {
         match self {
-            Resample::Keyframes(_) => "animation.glb",
+            Resample::Animation | Resample::Keyframes(_) => "animation.glb",
             Resample::Frames(_) => "stream.tmd",
         }
     }
 
-    /// The cache key (and ETag source) under the job's attempt prefix.
-    pub fn key(self, prefix: &str) -> String {
+    /// The cache key (and ETag source) under the job's attempt prefix, for
+    /// the run of `spec`: the job's own animation shares the key of its
+    /// keyframe count.
+    pub fn key(self, prefix: &str, spec: &JobSpec) -> String {
         match self {
+            Resample::Animation => format!("{prefix}/keyframes/{}", spec.render().keyframes),
             Resample::Keyframes(k) => format!("{prefix}/keyframes/{k}"),
             Resample::Frames(n) => format!("{prefix}/frames-resampled/{n}"),
         }
@@ -58,6 +64,7 @@ impl Resample {
     /// limit.
     fn check(self, job_frames: u32, max_frames: u32) -> Result<(), ApiError> {
         let (name, value, range) = match self {
+            Resample::Animation => return Ok(()),
             Resample::Keyframes(k) => ("keyframes", k, 2..=job_frames),
             Resample::Frames(n) => ("frames", n, crate::pipeline::MIN_FRAMES..=max_frames),
         };
@@ -75,6 +82,9 @@ impl Resample {
     fn request(self, stored: &str) -> Result<JobRequest, ApiError> {
         let mut request: Value = serde_json::from_str(stored).map_err(ApiError::internal)?;
         match self {
+            Resample::Animation => {
+                request["outputs"] = json!({"glb": false, "animated": true, "delta": false});
+            }
             Resample::Keyframes(k) => {
                 request["options"]["keyframes"] = json!(k);
                 request["outputs"] = json!({"glb": false, "animated": true, "delta": false});
@@ -156,16 +166,16 @@ async fn trees_of(
         })
 }
 
-/// The re-sampled file of a succeeded job `row` whose outputs live under
-/// `prefix`, from the render cache or run now.
-pub async fn file(
+/// The run that re-samples the succeeded job `row`, whose outputs live
+/// under `prefix`: its render-cache key (the ETag's source) and its spec,
+/// the stored request converted once with the new count and one output.
+pub fn prepare(
     state: &AppState,
     row: &JobRow,
     prefix: &str,
     what: Resample,
-) -> Result<Bytes, ApiError> {
+) -> Result<(String, JobSpec), ApiError> {
     what.check(row.frames, state.settings().max_frames)?;
-    check_version(row)?;
     let request = what.request(&row.request)?;
     // Unmeasured: the job's own metrics are stored; these would be thrown
     // away.
@@ -174,9 +184,22 @@ pub async fn file(
         .runner
         .check(&request, &state.settings().limits())?
         .unmeasured();
+    Ok((what.key(prefix, &spec), spec))
+}
+
+/// The re-sampled file under `key` ([`prepare`]), from the render cache or
+/// run now.
+pub async fn file(
+    state: &AppState,
+    row: &JobRow,
+    key: &str,
+    spec: JobSpec,
+    what: Resample,
+) -> Result<Bytes, ApiError> {
+    check_version(row)?;
     state
         .renders
-        .get_or_render(&what.key(prefix), run(state, spec, what))
+        .get_or_render(key, run(state, spec, what))
         .await
 }
 

@@ -203,3 +203,13 @@ pub fn files(dir: &Path) -> Vec<PathBuf> {
     out.sort();
     out
 }
+
+/// Polls `done` every 20 ms until it holds or 10 s have passed (for what
+/// a server does right after an answer, such as cleaning up after a job's
+/// end); the caller asserts on what it then finds.
+pub async fn eventually<F: std::future::Future<Output = bool>>(mut done: impl FnMut() -> F) {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    while !done().await && tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}

@@ -10,7 +10,7 @@ use treemorph::jobs::testing::{TestRunner, instant_glb};
 use treemorph::pipeline::frame_instant;
 use treemorph::store::renders::RenderStore;
 
-use crate::common::{error_code, files, spawn_with};
+use crate::common::{error_code, eventually, files, spawn_with};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn jobs_store_their_stream_and_render_frames_and_the_animation_on_request() {
@@ -44,10 +44,7 @@ async fn jobs_store_their_stream_and_render_frames_and_the_animation_on_request(
             .map(|p| p.file_name().unwrap().to_str().unwrap().to_owned())
             .collect()
     };
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while names().len() > 2 && std::time::Instant::now() < deadline {
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    eventually(|| async { names().len() <= 2 }).await;
     assert_eq!(names(), ["metrics.json", "stream.tmd"]);
     let links = &done["result"]["links"];
     assert_eq!(links["frames"], format!("/v1/jobs/{id}/frames/{{n}}.glb"));
@@ -134,10 +131,7 @@ async fn outputs_left_out_of_the_request_stay_404() {
     assert!(done["result"]["links"]["frames"].is_null(), "{done}");
     // Its (empty) stream records go after the success too.
     let job_dir = app.dir.path().join("blobs").join("jobs").join(&id);
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while files(&job_dir).len() > 2 && std::time::Instant::now() < deadline {
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    eventually(|| async { files(&job_dir).len() <= 2 }).await;
     let names: Vec<_> = files(&job_dir)
         .iter()
         .map(|p| p.file_name().unwrap().to_str().unwrap().to_owned())
@@ -225,10 +219,7 @@ async fn renders_are_kept_in_the_blob_store_for_every_process() {
             .unwrap();
         n
     };
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while records().await == 0 && std::time::Instant::now() < deadline {
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    eventually(|| async { records().await > 0 }).await;
     let stored = files(&job_dir);
     assert!(
         stored

@@ -11,7 +11,7 @@ use treemorph::jobs::retention;
 use treemorph::jobs::testing::TestRunner;
 use treemorph::store::new_id;
 
-use crate::common::{TestApp, error_code, files, spawn, spawn_with};
+use crate::common::{TestApp, error_code, eventually, files, spawn, spawn_with};
 
 fn blob_files(app: &TestApp) -> Vec<PathBuf> {
     files(&app.dir.path().join("blobs"))
@@ -26,17 +26,13 @@ async fn finished_job(app: &TestApp, a: &str, b: &str) -> String {
     // Its stream records go right after the success: wait until the blobs
     // it keeps have settled.
     let dir = app.dir.path().join("blobs").join("jobs").join(&id);
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while files(&dir)
-        .iter()
-        .any(|p| p.components().any(|c| c.as_os_str() == "stream"))
-    {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the stream records stayed"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    let records = || {
+        files(&dir)
+            .iter()
+            .any(|p| p.components().any(|c| c.as_os_str() == "stream"))
+    };
+    eventually(|| async { !records() }).await;
+    assert!(!records(), "the stream records stayed");
     id
 }
 
@@ -237,16 +233,13 @@ async fn the_storage_quota_counts_stored_bytes_and_deleting_makes_room() {
     let job = finished_job(&app, &a, &b).await;
     // The worker drops the stream records and counts the rest right after
     // the job's end is committed: the count settles on the bytes on disk.
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    let settled = loop {
-        let counted = db.stored_bytes("anonymous").await.unwrap() as u64;
-        let on_disk = bytes_of(&blob_files(&app));
-        if counted == on_disk || std::time::Instant::now() > deadline {
-            break (counted, on_disk);
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    };
-    assert_eq!(settled.0, settled.1, "the count is not what is stored");
+    let counted = || async { db.stored_bytes("anonymous").await.unwrap() as u64 };
+    eventually(|| async { counted().await == bytes_of(&blob_files(&app)) }).await;
+    assert_eq!(
+        counted().await,
+        bytes_of(&blob_files(&app)),
+        "the count is not what is stored"
+    );
 
     // Fill up: trees until one would exceed the quota.
     let mut trees = vec![a, b];

@@ -182,12 +182,9 @@ impl JobSpec {
     /// [`Runner::renders_on_request`]: crate::Runner::renders_on_request
     pub fn stored_part(&self) -> JobSpec {
         let mut spec = self.clone();
-        let render = match &mut spec {
-            JobSpec::Morph(m) => &mut m.render,
-            JobSpec::Sketch(s) => &mut s.render,
-        };
-        render.outputs.glb = false;
-        render.outputs.animated = false;
+        let outputs = &mut spec.render_mut().outputs;
+        outputs.glb = false;
+        outputs.animated = false;
         spec
     }
 
@@ -198,11 +195,15 @@ impl JobSpec {
     /// frame's cost.
     pub fn unmeasured(&self) -> JobSpec {
         let mut spec = self.clone();
-        match &mut spec {
-            JobSpec::Morph(m) => m.render.measured = false,
-            JobSpec::Sketch(s) => s.render.measured = false,
-        }
+        spec.render_mut().measured = false;
         spec
+    }
+
+    fn render_mut(&mut self) -> &mut RenderSpec {
+        match self {
+            JobSpec::Morph(m) => &mut m.render,
+            JobSpec::Sketch(s) => &mut s.render,
+        }
     }
 
     /// The ids of the trees the job reads.

@@ -232,8 +232,10 @@ pub struct MorphJobOptions {
         value_parser = clap::value_parser!(bool)
     )]
     pub slow_down: Option<bool>,
-    /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
-    /// default 24, or `frames` when fewer.
+    /// Keyframes of `animation.glb` (2 to `frames`): with `animation:
+    /// keyframes`, its morph targets (default 24, or `frames` when
+    /// fewer); with `basis`, the frames sampled for its weights (default
+    /// all).
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
@@ -246,6 +248,11 @@ pub struct MorphJobOptions {
     /// sixth).
     #[arg(long, value_enum, default_value_t)]
     pub animation_encoding: AnimationEncoding,
+    /// What `animation.glb`'s morph targets are: `basis` (default; at
+    /// most 16 targets spanning the motion, one weight key per frame) or
+    /// `keyframes` (one target per keyframe, the format before `basis`).
+    #[arg(long, value_enum, default_value_t)]
+    pub animation: AnimationKind,
 }
 
 /// A sketch job: `tree` is animated into the crown `sketch` drawn from
@@ -347,6 +354,24 @@ pub enum SketchMethod {
     SingleCage,
 }
 
+/// What `animation.glb`'s morph targets are.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum AnimationKind {
+    /// The motion's principal displacements: at most 16 morph targets,
+    /// the fewest that keep every vertex of every frame within 0.5 % of
+    /// the tree's height, and one weight key per frame (`keyframes` sets
+    /// how many frames are sampled; default all). Leaves and bark change
+    /// material in a staggered dissolve. Default.
+    #[default]
+    Basis,
+    /// One morph target per keyframe (`keyframes`, default 24): the
+    /// file's size grows with the keyframe count.
+    Keyframes,
+}
+
 /// How `animation.glb` stores its morph targets.
 #[derive(
     Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
@@ -388,8 +413,10 @@ pub struct SketchJobOptions {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[arg(long, value_enum)]
     pub fit: Option<SketchFit>,
-    /// Keyframes of `animation.glb` (morph targets; 2 to `frames`);
-    /// default 24, or `frames` when fewer.
+    /// Keyframes of `animation.glb` (2 to `frames`): with `animation:
+    /// keyframes`, its morph targets (default 24, or `frames` when
+    /// fewer); with `basis`, the frames sampled for its weights (default
+    /// all).
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
@@ -400,6 +427,10 @@ pub struct SketchJobOptions {
     /// quantized or meshopt (see the morph options).
     #[arg(long, value_enum, default_value_t)]
     pub animation_encoding: AnimationEncoding,
+    /// What `animation.glb`'s morph targets are: `basis` (default) or
+    /// `keyframes` (see the morph options).
+    #[arg(long, value_enum, default_value_t)]
+    pub animation: AnimationKind,
 }
 
 /// A job's life cycle: `queued` → `running` → `succeeded` | `failed` |

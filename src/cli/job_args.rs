@@ -147,7 +147,7 @@ mod tests {
     #[test]
     fn morph_flags_are_the_wire_options() {
         use clap::Parser;
-        use treemorph_api::jobs::{AnimationEncoding, LeafAssignment, Matching};
+        use treemorph_api::jobs::{AnimationEncoding, AnimationKind, LeafAssignment, Matching};
         let none = Flags::try_parse_from(["t"]).unwrap();
         assert_eq!(none.morph, MorphJobOptions::default());
         let all = Flags::try_parse_from([
@@ -161,6 +161,8 @@ mod tests {
             "5",
             "--animation-encoding",
             "meshopt",
+            "--animation",
+            "keyframes",
         ])
         .unwrap();
         assert_eq!(
@@ -171,6 +173,7 @@ mod tests {
                 slow_down: Some(false),
                 keyframes: Some(5),
                 animation_encoding: AnimationEncoding::Meshopt,
+                animation: AnimationKind::Keyframes,
             }
         );
         assert!(Flags::try_parse_from(["t", "--no-slow-down", "true"]).is_err());

@@ -94,11 +94,11 @@ use crate::gl::{
 };
 use crate::mesh::{LeafShape, MeshBuffers, MeshOptions};
 
-const KHR_MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
-const EXT_MESHOPT_COMPRESSION: &str = "EXT_meshopt_compression";
+pub(crate) const KHR_MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
+pub(crate) const EXT_MESHOPT_COMPRESSION: &str = "EXT_meshopt_compression";
 /// Quantised positions within the bounds stay within ±`HALF_RANGE`, so the
 /// difference of two fits `i16`.
-const HALF_RANGE: f32 = 16_383.0;
+pub(crate) const HALF_RANGE: f32 = 16_383.0;
 
 /// How vertex data is stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -307,42 +307,25 @@ impl AnimatedGlbBuilder {
         bounds: Aabb,
         options: &AnimatedOptions,
     ) -> Result<AnimatedGlbBuilder, EncodeError> {
-        if !(options.duration.is_finite() && options.duration > 0.0) {
-            return Err(EncodeError::InvalidOptions(format!(
-                "duration must be a positive number of seconds; got {}",
-                options.duration
-            )));
-        }
+        check_duration(options)?;
         if options.keyframes < 2 {
             return Err(EncodeError::InvalidOptions(format!(
                 "an animation needs at least 2 keyframes; got {}",
                 options.keyframes
             )));
         }
-        let quantized = options.encoding != AnimatedEncoding::Float;
-        if quantized && (bounds.is_empty() || !(bounds.min.is_finite() && bounds.max.is_finite())) {
-            return Err(EncodeError::InvalidOptions(format!(
-                "quantised encodings need finite bounds; got {bounds:?}"
-            )));
-        }
+        let (translation, scale) = grid(bounds, options.encoding)?.unwrap_or((Vec3::ZERO, 1.0));
         let meshes = FrameMeshes::new(topology, reference_radii, &options.mesh)?;
         let looks = Looks::new(topology, meshes.leaves(), 64);
-        let fading: Vec<u32> = topology
-            .leaves
-            .iter()
-            .enumerate()
-            .filter(|(_, l)| l.materials[0] != l.materials[1])
-            .map(|(i, _)| i as u32)
-            .collect();
+        let fading = fading_leaves(topology);
         let thresholds = fading.iter().map(|&i| threshold(i)).collect();
-        let extent = bounds.size().max_element().max(1e-6);
         Ok(AnimatedGlbBuilder {
             meshes,
             looks,
             topology: topology.clone(),
             options: options.clone(),
-            translation: bounds.center(),
-            scale: extent * 0.5 * 32_767.0 / HALF_RANGE,
+            translation,
+            scale,
             fading,
             thresholds,
             leaf_positions: Vec::new(),
@@ -463,17 +446,7 @@ impl AnimatedGlbBuilder {
         }
         let encoding = self.options.encoding;
         let layout = TargetLayout::new(encoding, self.targets.len() + 1);
-        let mut w = Writer {
-            doc: Doc::default(),
-            fallback_len: 0,
-            encoding,
-        };
-        if encoding != AnimatedEncoding::Float {
-            w.doc.use_extension(KHR_MESH_QUANTIZATION, true);
-        }
-        if encoding == AnimatedEncoding::Meshopt {
-            w.doc.use_extension(EXT_MESHOPT_COMPRESSION, true);
-        }
+        let mut w = Writer::new(encoding);
         self.write_materials(&mut w.doc, layout.keyframes);
         let inputs = self.mesh_inputs(bases, stored_base);
         let mut targets = std::mem::take(&mut self.targets);
@@ -485,17 +458,7 @@ impl AnimatedGlbBuilder {
             .chain(targets.iter().map(|k| k.time))
             .collect();
         write_animation(&mut w.doc, &times, &layout);
-        let Writer {
-            mut doc,
-            fallback_len,
-            ..
-        } = w;
-        if encoding == AnimatedEncoding::Meshopt {
-            doc.extra_buffers.push(json!({
-                "byteLength": fallback_len.max(4),
-                "extensions": { EXT_MESHOPT_COMPRESSION: { "fallback": true } },
-            }));
-        }
+        let doc = w.into_doc();
         let mut root = Map::new();
         root.insert("asset".into(), asset());
         root.insert("scene".into(), json!(0));
@@ -667,15 +630,43 @@ impl TargetLayout {
 
 /// The document being written and the length of the meshopt fallback
 /// buffer so far.
-struct Writer {
-    doc: Doc<'static>,
-    fallback_len: usize,
-    encoding: AnimatedEncoding,
+pub(crate) struct Writer {
+    pub(crate) doc: Doc<'static>,
+    pub(crate) fallback_len: usize,
+    pub(crate) encoding: AnimatedEncoding,
 }
 
 impl Writer {
+    /// An empty document declaring the extensions `encoding` needs.
+    pub(crate) fn new(encoding: AnimatedEncoding) -> Writer {
+        let mut doc = Doc::default();
+        if encoding != AnimatedEncoding::Float {
+            doc.use_extension(KHR_MESH_QUANTIZATION, true);
+        }
+        if encoding == AnimatedEncoding::Meshopt {
+            doc.use_extension(EXT_MESHOPT_COMPRESSION, true);
+        }
+        Writer {
+            doc,
+            fallback_len: 0,
+            encoding,
+        }
+    }
+
+    /// The document, with the meshopt fallback buffer when compressed.
+    pub(crate) fn into_doc(self) -> Doc<'static> {
+        let mut doc = self.doc;
+        if self.encoding == AnimatedEncoding::Meshopt {
+            doc.extra_buffers.push(json!({
+                "byteLength": self.fallback_len.max(4),
+                "extensions": { EXT_MESHOPT_COMPRESSION: { "fallback": true } },
+            }));
+        }
+        doc
+    }
+
     /// A vertex attribute's view and accessor; returns the accessor.
-    fn attribute(
+    pub(crate) fn attribute(
         &mut self,
         count: usize,
         bytes: Vec<u8>,
@@ -783,9 +774,52 @@ impl Base {
     }
 }
 
+/// Refuses a duration that is not a positive number of seconds.
+pub(crate) fn check_duration(options: &AnimatedOptions) -> Result<(), EncodeError> {
+    if options.duration.is_finite() && options.duration > 0.0 {
+        return Ok(());
+    }
+    Err(EncodeError::InvalidOptions(format!(
+        "duration must be a positive number of seconds; got {}",
+        options.duration
+    )))
+}
+
+/// The quantisation grid of `bounds` for `encoding` (none for floats):
+/// world = translation plus scale times q / 32767, the bounds mapped to
+/// ±[`HALF_RANGE`].
+pub(crate) fn grid(
+    bounds: Aabb,
+    encoding: AnimatedEncoding,
+) -> Result<Option<(Vec3, f32)>, EncodeError> {
+    if encoding == AnimatedEncoding::Float {
+        return Ok(None);
+    }
+    if bounds.is_empty() || !(bounds.min.is_finite() && bounds.max.is_finite()) {
+        return Err(EncodeError::InvalidOptions(format!(
+            "quantised encodings need finite bounds; got {bounds:?}"
+        )));
+    }
+    let extent = bounds.size().max_element().max(1e-6);
+    Ok(Some((
+        bounds.center(),
+        extent * 0.5 * 32_767.0 / HALF_RANGE,
+    )))
+}
+
+/// Leaves whose two materials differ, in order.
+pub(crate) fn fading_leaves(topology: &FrameTopology) -> Vec<u32> {
+    (0..topology.leaves.len() as u32)
+        .filter(|&i| {
+            let m = topology.leaves[i as usize].materials;
+            m[0] != m[1]
+        })
+        .collect()
+}
+
 /// A fading leaf's threshold in (0, 1): a hash of its index, so the swaps
 /// spread evenly over the blend ramp whatever the leaf order.
-fn threshold(leaf: u32) -> f32 {
+pub(crate) fn threshold(leaf: u32) -> f32 {
     let mut z = u64::from(leaf).wrapping_add(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
@@ -905,13 +939,13 @@ fn bounds(points: &[Vec3]) -> Aabb {
 
 /// The grid coordinate of `p` (world = t + s·q/32767), refused beyond the
 /// `i16` range.
-fn quantise(p: Vec3, t: Vec3, s: f32) -> Option<[i16; 3]> {
+pub(crate) fn quantise(p: Vec3, t: Vec3, s: f32) -> Option<[i16; 3]> {
     let q = (p - t) / s * 32_767.0;
     let r = q.round();
     (r.abs().max_element() <= 32_767.0).then_some([r.x as i16, r.y as i16, r.z as i16])
 }
 
-fn quantise_normal(n: Vec3) -> [i8; 3] {
+pub(crate) fn quantise_normal(n: Vec3) -> [i8; 3] {
     let q = (n.clamp(Vec3::NEG_ONE, Vec3::ONE) * 127.0).round();
     [q.x as i8, q.y as i8, q.z as i8]
 }
@@ -942,7 +976,7 @@ fn base(
     })
 }
 
-fn outside() -> EncodeError {
+pub(crate) fn outside() -> EncodeError {
     EncodeError::Frame(treemorph_tree::frame::FrameMismatch(
         "a vertex lies too far outside the animation's bounds to quantise".into(),
     ))
@@ -1046,7 +1080,7 @@ fn target(
     }
 }
 
-fn i16_bounds(values: &[[i16; 3]]) -> ([f64; 3], [f64; 3]) {
+pub(crate) fn i16_bounds(values: &[[i16; 3]]) -> ([f64; 3], [f64; 3]) {
     let mut lo = [i16::MAX; 3];
     let mut hi = [i16::MIN; 3];
     for v in values {
@@ -1061,7 +1095,7 @@ fn i16_bounds(values: &[[i16; 3]]) -> ([f64; 3], [f64; 3]) {
     (lo.map(f64::from), hi.map(f64::from))
 }
 
-fn vec3_bytes(v: &[Vec3]) -> Vec<u8> {
+pub(crate) fn vec3_bytes(v: &[Vec3]) -> Vec<u8> {
     let mut out = vec![0u8; v.len() * 12];
     out.par_chunks_mut(12 * 4096)
         .zip(v.par_chunks(4096))
@@ -1075,7 +1109,7 @@ fn vec3_bytes(v: &[Vec3]) -> Vec<u8> {
     out
 }
 
-fn i16x4_bytes(v: &[[i16; 3]]) -> Vec<u8> {
+pub(crate) fn i16x4_bytes(v: &[[i16; 3]]) -> Vec<u8> {
     let mut out = vec![0u8; v.len() * 8];
     for (o, p) in out.chunks_exact_mut(8).zip(v) {
         for a in 0..3 {
@@ -1085,7 +1119,7 @@ fn i16x4_bytes(v: &[[i16; 3]]) -> Vec<u8> {
     out
 }
 
-fn i8x4_bytes(v: &[[i8; 3]]) -> Vec<u8> {
+pub(crate) fn i8x4_bytes(v: &[[i8; 3]]) -> Vec<u8> {
     let mut out = vec![0u8; v.len() * 4];
     for (o, p) in out.chunks_exact_mut(4).zip(v) {
         for a in 0..3 {
@@ -1095,13 +1129,13 @@ fn i8x4_bytes(v: &[[i8; 3]]) -> Vec<u8> {
     out
 }
 
-fn f32_bytes(v: &[f32]) -> Vec<u8> {
+pub(crate) fn f32_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
 /// meshopt's attribute codec (version 0, as EXT_meshopt_compression
 /// requires) over elements of `N` bytes.
-fn compress<const N: usize>(bytes: &[u8]) -> Vec<u8> {
+pub(crate) fn compress<const N: usize>(bytes: &[u8]) -> Vec<u8> {
     let (elements, _) = bytes.as_chunks::<N>();
     meshopt::encode_vertex_buffer_level(elements, 0, Some(0))
         .expect("meshopt encodes any well-sized buffer")
@@ -1109,13 +1143,15 @@ fn compress<const N: usize>(bytes: &[u8]) -> Vec<u8> {
 
 /// What an attribute view holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Attr {
+pub(crate) enum Attr {
     Vec3F32,
     Vec2F32,
     /// Normalised `i16` VEC3 padded to 8 bytes.
     Vec3I16,
     /// Normalised `i8` VEC3 padded to 4 bytes.
     Vec3I8,
+    /// Normalised `u16` VEC2 (texture coordinates in [0, 1]).
+    Vec2U16,
 }
 
 impl Attr {
@@ -1123,19 +1159,19 @@ impl Attr {
         match self {
             Attr::Vec3F32 => 12,
             Attr::Vec2F32 | Attr::Vec3I16 => 8,
-            Attr::Vec3I8 => 4,
+            Attr::Vec3I8 | Attr::Vec2U16 => 4,
         }
     }
 }
 
-fn kinds(encoding: AnimatedEncoding) -> (Attr, Attr) {
+pub(crate) fn kinds(encoding: AnimatedEncoding) -> (Attr, Attr) {
     match encoding {
         AnimatedEncoding::Float => (Attr::Vec3F32, Attr::Vec3F32),
         _ => (Attr::Vec3I16, Attr::Vec3I8),
     }
 }
 
-fn accessor_json(
+pub(crate) fn accessor_json(
     view: usize,
     kind: Attr,
     count: usize,
@@ -1146,6 +1182,7 @@ fn accessor_json(
         Attr::Vec2F32 => (FLOAT, "VEC2", false),
         Attr::Vec3I16 => (SHORT, "VEC3", true),
         Attr::Vec3I8 => (BYTE, "VEC3", true),
+        Attr::Vec2U16 => (UNSIGNED_SHORT, "VEC2", true),
     };
     let mut a =
         json!({ "bufferView": view, "componentType": component, "count": count, "type": ty });
@@ -1163,7 +1200,7 @@ fn accessor_json(
 /// layout in the fallback buffer. Views of padded or non-12-byte elements
 /// declare their stride; compressed bytes were produced by the caller,
 /// except UVs, compressed here.
-fn attribute_view(
+pub(crate) fn attribute_view(
     doc: &mut Doc<'static>,
     fallback_len: &mut usize,
     count: usize,
@@ -1195,13 +1232,13 @@ fn attribute_view(
 }
 
 /// Reserves `len` bytes of the fallback buffer (4-byte aligned).
-fn fallback(fallback_len: &mut usize, len: usize) -> usize {
+pub(crate) fn fallback(fallback_len: &mut usize, len: usize) -> usize {
     let start = fallback_len.next_multiple_of(4);
     *fallback_len = start + len;
     start
 }
 
-fn index_accessor(
+pub(crate) fn index_accessor(
     doc: &mut Doc<'static>,
     fallback_len: &mut usize,
     indices: &[u32],

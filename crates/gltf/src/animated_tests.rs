@@ -382,14 +382,6 @@ fn streaming_writes_the_same_file() {
 #[test]
 #[ignore = "needs node, chromium and `npm ci --prefix tools/render`"]
 fn threejs_plays_the_animation_as_written() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let tool = root.join("tools/render");
-    assert!(
-        tool.join("node_modules/three").exists(),
-        "run `npm ci --prefix tools/render` first"
-    );
-    let dir = root.join("target/threejs-check");
-    std::fs::create_dir_all(&dir).unwrap();
     let sway = sway(5);
     let duration = 4.0;
     for encoding in [
@@ -438,31 +430,8 @@ fn threejs_plays_the_animation_as_written() {
                 })
             })
             .collect();
-        let name = format!("{encoding:?}").to_lowercase();
-        let file = dir.join(format!("animated-{name}.glb"));
-        let expected_file = dir.join(format!("animated-{name}.json"));
-        std::fs::write(&file, &glb).unwrap();
-        std::fs::write(
-            &expected_file,
-            serde_json::to_vec(&serde_json::json!({ "tolerance": tolerance, "meshes": meshes }))
-                .unwrap(),
-        )
-        .unwrap();
-        let output = std::process::Command::new("node")
-            .arg(tool.join("check-animated.mjs"))
-            .arg(&file)
-            .arg(&expected_file)
-            .output()
-            .expect("node runs");
-        println!(
-            "{}{}",
-            String::from_utf8_lossy(&output.stdout),
-            String::from_utf8_lossy(&output.stderr)
-        );
-        assert!(
-            output.status.success(),
-            "three.js disagrees about {}",
-            file.display()
-        );
+        let name = format!("animated-{encoding:?}").to_lowercase();
+        let expected = serde_json::json!({ "tolerance": tolerance, "meshes": meshes });
+        crate::test_support::check_with_threejs(&name, &glb, &expected);
     }
 }

@@ -31,6 +31,9 @@
 //! - [`animated`] — [`AnimatedGlbBuilder`](animated::AnimatedGlbBuilder):
 //!   one GLB whose morph targets are keyframes, played by any glTF viewer;
 //!   float, `KHR_mesh_quantization` or `EXT_meshopt_compression`.
+//! - [`basis`] — [`BasisGlbBuilder`](basis::BasisGlbBuilder): one GLB
+//!   whose few morph targets are the motion's principal displacements,
+//!   with per-frame weights; the same encodings.
 //! - [`stream`] — [`DeltaStreamWriter`](stream::DeltaStreamWriter): the
 //!   binary delta stream of [`treemorph_api::delta`], frame by frame.
 //! - [`frames`] — what they share: [`EncodeError`](frames::EncodeError),
@@ -58,6 +61,7 @@
 //! animated GLBs as written (the ignored `threejs` unit test).
 
 pub mod animated;
+pub mod basis;
 pub mod bench;
 pub mod contour;
 mod doc;

@@ -102,7 +102,10 @@ impl Parsed {
                 let v = match component {
                     FLOAT => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
                     UNSIGNED_INT => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-                    UNSIGNED_SHORT => f32::from(u16::from_le_bytes([b[0], b[1]])),
+                    UNSIGNED_SHORT => {
+                        let v = f32::from(u16::from_le_bytes([b[0], b[1]]));
+                        if normalized { v / 65_535.0 } else { v }
+                    }
                     SHORT => {
                         let v = f32::from(i16::from_le_bytes([b[0], b[1]]));
                         if normalized {
@@ -222,4 +225,39 @@ pub(crate) fn canonical_triangles(indices: &[u32]) -> Vec<[u32; 3]> {
             [t[r], t[(r + 1) % 3], t[(r + 2) % 3]]
         })
         .collect()
+}
+
+/// Writes `glb` and `expected` (the `EXPECTED.json` of
+/// `tools/render/check-animated.mjs`) as `target/threejs-check/NAME.glb`
+/// and `.json`, runs the checker on them and fails the test when three.js
+/// disagrees.
+pub(crate) fn check_with_threejs(name: &str, glb: &[u8], expected: &Value) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let tool = root.join("tools/render");
+    assert!(
+        tool.join("node_modules/three").exists(),
+        "run `npm ci --prefix tools/render` first"
+    );
+    let dir = root.join("target/threejs-check");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join(format!("{name}.glb"));
+    let expected_file = dir.join(format!("{name}.json"));
+    std::fs::write(&file, glb).unwrap();
+    std::fs::write(&expected_file, serde_json::to_vec(expected).unwrap()).unwrap();
+    let output = std::process::Command::new("node")
+        .arg(tool.join("check-animated.mjs"))
+        .arg(&file)
+        .arg(&expected_file)
+        .output()
+        .expect("node runs");
+    println!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        output.status.success(),
+        "three.js disagrees about {}",
+        file.display()
+    );
 }

@@ -16,6 +16,7 @@ use std::process::Command;
 use glam::{Quat, Vec3};
 use treemorph_generate::{GenerateOptions, Preset, generate};
 use treemorph_gltf::animated::{AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions};
+use treemorph_gltf::basis::BasisGlbBuilder;
 use treemorph_gltf::bench::Sway;
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::mesh::MeshOptions;
@@ -161,6 +162,14 @@ fn write_frame_samples(dir: &Path) -> Vec<PathBuf> {
         write(
             &format!("animated-{encoding:?}.glb").to_lowercase(),
             builder.finish().unwrap(),
+        );
+        let mut basis = BasisGlbBuilder::new(topology, radii, sway.bounds(), &options).unwrap();
+        for i in 0..sway.len() {
+            basis.push(&sway.frame(i)).unwrap();
+        }
+        write(
+            &format!("basis-{encoding:?}.glb").to_lowercase(),
+            basis.finish().unwrap().0,
         );
     }
     files

@@ -36,7 +36,8 @@ use std::time::Instant;
 use serde_json::{Value, json};
 use treemorph_analysis::Analysis;
 use treemorph_api::ErrorCode;
-use treemorph_gltf::animated::{AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
+use treemorph_gltf::animated::{AnimatedOptions, keyframe_indices};
+use treemorph_gltf::basis::{AnimationBuilder, BasisReport};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::frames::{EncodeError, FrameMeshes, max_radii};
 use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
@@ -483,14 +484,19 @@ fn copy_geometry(to: &mut MeshBuffers, from: &MeshBuffers) {
 struct Rendered {
     frames: u32,
     files: Vec<String>,
+    /// What the basis animation reached, when one was written.
+    animation: Option<BasisReport>,
 }
 
 fn finish(
     rendered: Rendered,
-    metrics: Value,
+    mut metrics: Value,
     summary: Value,
     sink: &mut dyn JobSink,
 ) -> Result<JobOutcome, JobError> {
+    if let Some(report) = &rendered.animation {
+        add_animation_metrics(&mut metrics, report);
+    }
     let bytes = serde_json::to_vec_pretty(&metrics).map_err(JobError::internal)?;
     sink.file("metrics.json", bytes).map_err(stored)?;
     let mut files = rendered.files;
@@ -501,6 +507,15 @@ fn finish(
         metrics: summary,
         files,
     })
+}
+
+/// The basis animation's figures in `metrics.json`: its morph target
+/// count, its largest vertex error as a fraction of the tree's height,
+/// and whether that is within the budget.
+fn add_animation_metrics(metrics: &mut Value, report: &BasisReport) {
+    metrics["animation_targets"] = report.targets.into();
+    metrics["animation_max_error"] = f64::from(report.max_error).into();
+    metrics["animation_within_budget"] = report.within_budget.into();
 }
 
 /// Bounds of every node (with its radius) and leaf (with its size) of a
@@ -545,7 +560,7 @@ fn probe(eval: &mut impl FnMut(f32, &mut Frame), frame: &mut Frame) -> Probed {
 struct Encoders {
     stream: Option<DeltaStreamWriter>,
     glb: Option<FrameGlbWriter>,
-    animated: Option<AnimatedGlbBuilder>,
+    animated: Option<AnimationBuilder>,
     /// Frame indices that become keyframes of the animated GLB.
     picks: Vec<usize>,
     next_pick: usize,
@@ -578,7 +593,13 @@ impl Encoders {
                 let options = AnimatedOptions::default()
                     .with_keyframes(picks.len())
                     .with_encoding(render.encoding);
-                AnimatedGlbBuilder::new(topology, &probed.radii, probed.bounds, &options)
+                AnimationBuilder::new(
+                    render.animation,
+                    topology,
+                    &probed.radii,
+                    probed.bounds,
+                    &options,
+                )
             })
             .transpose()
             .map_err(encode)?;
@@ -638,8 +659,9 @@ impl Encoders {
         self,
         mut whole_stream: Vec<u8>,
         sink: &mut dyn JobSink,
-    ) -> Result<Vec<String>, JobError> {
+    ) -> Result<(Vec<String>, Option<BasisReport>), JobError> {
         let mut files = Vec::new();
+        let mut report = None;
         if let Some(mut stream) = self.stream {
             stream.finish(&mut whole_stream).map_err(encode)?;
             sink.file("stream.tmd", whole_stream).map_err(stored)?;
@@ -647,11 +669,12 @@ impl Encoders {
         }
         if let Some(builder) = self.animated {
             sink.stage(stage::FINISHING, 0.96);
-            let bytes = builder.finish().map_err(encode)?;
+            let (bytes, basis) = builder.finish().map_err(encode)?;
             sink.file("animation.glb", bytes).map_err(stored)?;
             files.push("animation.glb".into());
+            report = basis;
         }
-        Ok(files)
+        Ok((files, report))
     }
 }
 
@@ -736,8 +759,12 @@ fn render(
         let report = check.check()?;
         measure(&checked, &report);
     }
-    let files = encoders.finish(whole_stream, sink)?;
-    Ok(Rendered { frames, files })
+    let (files, animation) = encoders.finish(whole_stream, sink)?;
+    Ok(Rendered {
+        frames,
+        files,
+        animation,
+    })
 }
 
 /// Publishes the stream header before frame 0, appends the record to the

@@ -184,6 +184,7 @@ fn heart_request(frames: u32) -> JobRequest {
             fit: Some(SketchFit::Crown),
             keyframes: None,
             animation_encoding: Default::default(),
+            animation: Default::default(),
         },
         outputs: Outputs::default(),
         callback_url: None,
@@ -293,10 +294,10 @@ fn a_missing_tree_is_reported_not_panicked() {
     assert_eq!(err.code, ErrorCode::TreeNotFound);
 }
 
-#[test]
-fn the_animation_encoding_is_honoured() {
-    let JobRequest::Morph(mut morph) = morph_request(
-        4,
+/// A morph request that asks for the animated GLB only.
+fn animated_only_morph(frames: u32) -> MorphRequest {
+    let JobRequest::Morph(morph) = morph_request(
+        frames,
         Outputs {
             glb: false,
             animated: true,
@@ -305,6 +306,44 @@ fn the_animation_encoding_is_honoured() {
     ) else {
         unreachable!()
     };
+    morph
+}
+
+/// The default animation is the motion basis, and `metrics.json` says
+/// what it reached; `keyframes` writes one target per keyframe and no
+/// basis figures.
+#[test]
+fn the_animation_kind_is_honoured_and_measured() {
+    let mut morph = animated_only_morph(6);
+    let trees = morph_trees();
+    let mut sink = MemorySink::default();
+    run(&JobRequest::Morph(morph.clone()), &trees, &mut sink).unwrap();
+    let metrics: Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    let targets = metrics["animation_targets"].as_u64().unwrap();
+    assert!((1..=16).contains(&targets), "{metrics}");
+    assert!(metrics["animation_max_error"].as_f64().unwrap() <= 0.005);
+    assert_eq!(metrics["animation_within_budget"], true);
+    morph.options.animation = treemorph_api::jobs::AnimationKind::Keyframes;
+    let mut sink = MemorySink::default();
+    run(&JobRequest::Morph(morph), &trees, &mut sink).unwrap();
+    let metrics: Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    assert!(metrics.get("animation_targets").is_none());
+    let glb = &sink.files["animation.glb"];
+    let json_len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    // Six frames, at most 24 keyframes: five targets besides the base.
+    assert_eq!(
+        json["meshes"][0]["primitives"][0]["targets"]
+            .as_array()
+            .unwrap()
+            .len(),
+        5
+    );
+}
+
+#[test]
+fn the_animation_encoding_is_honoured() {
+    let mut morph = animated_only_morph(4);
     let trees = morph_trees();
     let mut sizes = Vec::new();
     for encoding in [

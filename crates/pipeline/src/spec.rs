@@ -19,6 +19,7 @@ use treemorph_api::jobs::{
     MorphRequest, Outputs, SketchFit, SketchJobOptions, SketchMethod, SketchRequest,
 };
 use treemorph_gltf::animated::AnimatedEncoding;
+use treemorph_gltf::basis::AnimationKind;
 use treemorph_morph::{ChainMatching, LeafMorph, MorphError, MorphOptions};
 use treemorph_sketch::{Fit, Method, Sketch, SketchError, SketchOptions, View};
 use treemorph_tree::glam::{Vec2, Vec3};
@@ -89,10 +90,13 @@ pub struct RenderSpec {
     pub frames: u32,
     /// Which outputs to write.
     pub outputs: Outputs,
-    /// Keyframes of the animated GLB (resolved: at most `frames`).
+    /// Keyframes of the animated GLB (resolved: at most `frames`): its
+    /// morph targets, or for a basis the frames its weights sample.
     pub keyframes: u32,
     /// How the animated GLB stores its morph targets.
     pub encoding: AnimatedEncoding,
+    /// What the animated GLB's morph targets are.
+    pub animation: AnimationKind,
     /// Whether the run measures its frames: the output-level check and
     /// the per-frame series of `metrics.json`. Always true for a parsed
     /// request; renders on request turn it off ([`JobSpec::unmeasured`]).
@@ -320,9 +324,27 @@ pub fn sketch_options(o: &SketchJobOptions) -> SketchOptions {
 
 fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, SpecError> {
     let (frames, outputs) = (request.frames(), *request.outputs());
-    let (keyframes, encoding) = match request {
-        JobRequest::Morph(r) => (r.options.keyframes, r.options.animation_encoding),
-        JobRequest::Sketch(r) => (r.options.keyframes, r.options.animation_encoding),
+    let (keyframes, encoding, animation) = match request {
+        JobRequest::Morph(r) => (
+            r.options.keyframes,
+            r.options.animation_encoding,
+            r.options.animation,
+        ),
+        JobRequest::Sketch(r) => (
+            r.options.keyframes,
+            r.options.animation_encoding,
+            r.options.animation,
+        ),
+    };
+    let animation = match animation {
+        treemorph_api::jobs::AnimationKind::Basis => AnimationKind::Basis,
+        treemorph_api::jobs::AnimationKind::Keyframes => AnimationKind::Keyframes,
+    };
+    // A basis samples every frame unless told otherwise: its size does not
+    // grow with the samples.
+    let default_keyframes = match animation {
+        AnimationKind::Keyframes => DEFAULT_KEYFRAMES,
+        _ => frames,
     };
     if !(MIN_FRAMES..=limits.max_frames).contains(&frames) {
         return Err(SpecError::Frames {
@@ -341,12 +363,13 @@ fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, Spec
     Ok(RenderSpec {
         frames,
         outputs,
-        keyframes: keyframes.unwrap_or(DEFAULT_KEYFRAMES).min(frames),
+        keyframes: keyframes.unwrap_or(default_keyframes).min(frames),
         encoding: match encoding {
             AnimationEncoding::Float => AnimatedEncoding::Float,
             AnimationEncoding::Quantized => AnimatedEncoding::Quantized,
             AnimationEncoding::Meshopt => AnimatedEncoding::Meshopt,
         },
+        animation,
         measured: true,
     })
 }

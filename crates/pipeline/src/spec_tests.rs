@@ -4,6 +4,7 @@ use treemorph_api::jobs::{
     JobRequest, MorphJobOptions, MorphRequest, Outputs, SketchInput, SketchJobOptions,
     SketchRequest,
 };
+use treemorph_gltf::basis::AnimationKind;
 
 use super::*;
 use crate::ErrorCoded;
@@ -53,11 +54,20 @@ fn frames_above_600_are_accepted_when_the_limit_allows_them() {
 }
 
 #[test]
-fn keyframes_resolve_to_the_default_or_the_frame_count() {
+fn keyframes_resolve_to_the_kinds_default_or_the_frame_count() {
     let spec = JobSpec::parse(&morph(10, MorphJobOptions::default()), &Limits::default()).unwrap();
     assert_eq!(spec.render().keyframes, 10);
+    // A basis (the default) samples every frame; keyframes default to 24.
     let spec = JobSpec::parse(&morph(60, MorphJobOptions::default()), &Limits::default()).unwrap();
+    assert_eq!(spec.render().keyframes, 60);
+    assert_eq!(spec.render().animation, AnimationKind::Basis);
+    let keyframes = MorphJobOptions {
+        animation: treemorph_api::jobs::AnimationKind::Keyframes,
+        ..MorphJobOptions::default()
+    };
+    let spec = JobSpec::parse(&morph(60, keyframes), &Limits::default()).unwrap();
     assert_eq!(spec.render().keyframes, DEFAULT_KEYFRAMES);
+    assert_eq!(spec.render().animation, AnimationKind::Keyframes);
     let options = MorphJobOptions {
         keyframes: Some(11),
         ..MorphJobOptions::default()

@@ -1,0 +1,1007 @@
+//! The animated GLB as a motion basis: [`BasisGlbBuilder`].
+//!
+//! [`crate::animated`] stores every keyframe as a morph target, so a file
+//! grows with its keyframes and a player holds all of them in memory.
+//! Here the sequence's vertex motion is stored as at most
+//! [`MAX_TARGETS`] morph targets — its principal displacements from the
+//! first frame ([`motion`]) — and one weight per target and frame:
+//!
+//! - The **base mesh** is the first frame. Every frame pushed is a sample
+//!   of the animation at its time (`t` × [`AnimatedOptions::duration`]);
+//!   the animation's weights sampler has one key per sample (LINEAR), so
+//!   the file's size is set by the target count, not the frame count.
+//! - The **target count `K`** is the smallest that keeps every vertex of
+//!   every sample within [`ERROR_BUDGET`] of the tree's height (the
+//!   largest vertical extent of any sample's meshes) of its exact
+//!   position, measured on the targets as stored. When
+//!   [`MAX_TARGETS`] are not enough, all of them are used and the
+//!   [`BasisReport`] says so with the error reached. The figures are also
+//!   in the scene's `extras.treemorph`.
+//! - Targets carry POSITION and NORMAL; the weights are the frames'
+//!   coordinates in the basis, so any glTF player (three.js, Blender's
+//!   shape keys, game engines) plays them as ordinary morph targets.
+//!
+//! # Looks: dissolves instead of blends
+//! Core glTF cannot blend two textures on one surface, and a blend factor
+//! in a vertex attribute needs a shader of our own. So the change of
+//! material is a **dissolve in a few steps** that every player follows:
+//! the meshes are drawn by several nodes that share all vertex data
+//! (accessors are shared, only index lists differ), and each node's
+//! `scale` switches between 1 and 0 with STEP interpolation at its swap
+//! time — a node at scale 0 draws nothing.
+//!
+//! - **Leaves** whose two materials differ swap when their blend passes
+//!   their own threshold (a hash of the leaf index, as in
+//!   [`crate::animated`]), so the crown changes leaf by leaf. Leaves that
+//!   swap at the same sample form one group; more than
+//!   [`MAX_LEAF_GROUPS`] distinct swap times are merged into that many
+//!   groups. A group is two nodes: its leaves in their first material
+//!   until the swap, and in their second material (with that material's
+//!   outline as texture coordinates) from it. The two are never shown
+//!   together, so they cannot z-fight.
+//! - **Bark** changes in [`BARK_BANDS`] horizontal bands from the ground
+//!   up (by the first frame's height of each triangle), band `g` when the
+//!   sequence's bark blend has gone `(g + ½) / BARK_BANDS` of its way: a
+//!   wave of new bark rising through the tree. The first frame's bark is
+//!   exactly the first frame's blend of the source bark, and the last
+//!   frame's the last frame's.
+//!
+//! # Encodings
+//! As [`crate::animated`]: float, or `KHR_mesh_quantization` (base
+//! positions on the `i16` grid of the bounds, base normals `i8`), or that
+//! compressed with `EXT_meshopt_compression`. Quantised targets are
+//! normalised `i16` for positions *and* normals, each target scaled by its
+//! own largest component (its weights carry the scale back), so a target
+//! uses the whole `i16` range whatever its share of the motion. The error
+//! reported is measured with the targets as stored.
+//!
+//! The nodes hang under one root node `tree`, which carries the
+//! quantisation grid's translation and scale, so the swap nodes' own
+//! scale is free for the dissolve.
+
+mod appearance;
+mod motion;
+
+use std::io::Write;
+
+use glam::{Vec2, Vec3};
+use serde_json::{Map, Value, json};
+use treemorph_tree::{Aabb, Frame, FrameTopology};
+
+use crate::animated::{
+    AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, Attr, Writer, check_duration, compress,
+    f32_bytes, fading_leaves, grid, i8x4_bytes, i16_bounds, i16x4_bytes, index_accessor, outside,
+    quantise, quantise_normal, threshold, vec3_bytes,
+};
+use crate::contour::LeafContour;
+use crate::doc::{Data, Doc, Wrap, asset};
+use crate::frame_glb::material_json;
+use crate::frames::{EncodeError, FrameMeshes, Looks, check_frame};
+use crate::gl::FLOAT;
+use appearance::{NodePlan, Show};
+use motion::Columns;
+
+/// Most morph targets a basis animation uses.
+pub const MAX_TARGETS: usize = 16;
+/// The largest vertex error a basis animation aims for, as a fraction of
+/// the tree's height.
+pub const ERROR_BUDGET: f32 = 0.005;
+/// Most groups of leaves that change material at one time.
+pub const MAX_LEAF_GROUPS: usize = 16;
+/// Bands in which the bark changes, from the ground up.
+pub const BARK_BANDS: usize = 8;
+
+/// Which animated GLB to build.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum AnimationKind {
+    /// [`BasisGlbBuilder`]: the motion's principal displacements.
+    #[default]
+    Basis,
+    /// [`AnimatedGlbBuilder`]: one morph target per keyframe.
+    Keyframes,
+}
+
+/// The animated GLB of either kind, built from frames pushed in order.
+pub enum AnimationBuilder {
+    /// One morph target per keyframe.
+    Keyframes(Box<AnimatedGlbBuilder>),
+    /// The motion basis.
+    Basis(Box<BasisGlbBuilder>),
+}
+
+impl AnimationBuilder {
+    /// The builder of `kind` (see each builder's `new`).
+    pub fn new(
+        kind: AnimationKind,
+        topology: &FrameTopology,
+        reference_radii: &[f32],
+        bounds: Aabb,
+        options: &AnimatedOptions,
+    ) -> Result<AnimationBuilder, EncodeError> {
+        Ok(match kind {
+            AnimationKind::Keyframes => AnimationBuilder::Keyframes(Box::new(
+                AnimatedGlbBuilder::new(topology, reference_radii, bounds, options)?,
+            )),
+            AnimationKind::Basis => AnimationBuilder::Basis(Box::new(BasisGlbBuilder::new(
+                topology,
+                reference_radii,
+                bounds,
+                options,
+            )?)),
+        })
+    }
+
+    /// Adds the next keyframe or sample.
+    pub fn push(&mut self, frame: &Frame) -> Result<(), EncodeError> {
+        match self {
+            AnimationBuilder::Keyframes(b) => b.push(frame),
+            AnimationBuilder::Basis(b) => b.push(frame),
+        }
+    }
+
+    /// The GLB, and for a basis what it reached.
+    pub fn finish(self) -> Result<(Vec<u8>, Option<BasisReport>), EncodeError> {
+        match self {
+            AnimationBuilder::Keyframes(b) => Ok((b.finish()?, None)),
+            AnimationBuilder::Basis(b) => b.finish().map(|(glb, r)| (glb, Some(r))),
+        }
+    }
+}
+
+/// What a basis animation reached.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BasisReport {
+    /// Morph targets used (0 for a still sequence).
+    pub targets: usize,
+    /// The largest distance of any vertex of any sample from its exact
+    /// position, as a fraction of the tree's height.
+    pub max_error: f32,
+    /// Whether that is within [`ERROR_BUDGET`] (false when
+    /// [`MAX_TARGETS`] were not enough).
+    pub within_budget: bool,
+    /// The tree's height: the largest vertical extent of a sample, metres.
+    pub height: f32,
+}
+
+/// Builds the basis animation of a sequence from its frames, pushed in
+/// time order. It keeps every sample's vertex displacements (12 bytes per
+/// vertex and frame, twice: positions and normals) until
+/// [`BasisGlbBuilder::finish`], which needs all of them.
+///
+/// ```
+/// use treemorph_gltf::animated::AnimatedOptions;
+/// use treemorph_gltf::basis::BasisGlbBuilder;
+/// use treemorph_tree::{Aabb, Frame, FrameTopology};
+/// # let tree = treemorph_gltf::sample::sample_tree(20);
+/// let topology = FrameTopology::of_tree(&tree);
+/// let mut frame = Frame::of_tree(&tree);
+/// let bounds = Aabb::of_points(frame.positions.iter().copied()).inflated(1.0);
+/// let mut builder = BasisGlbBuilder::new(&topology, &frame.radii, bounds, &AnimatedOptions::default())?;
+/// builder.push(&frame)?;
+/// frame.t = 1.0;
+/// frame.positions[1].x += 0.5;
+/// builder.push(&frame)?;
+/// let (glb, report) = builder.finish()?;
+/// assert_eq!(&glb[..4], b"glTF");
+/// assert_eq!(report.targets, 1);
+/// # Ok::<(), treemorph_gltf::frames::EncodeError>(())
+/// ```
+pub struct BasisGlbBuilder {
+    meshes: FrameMeshes,
+    looks: Looks,
+    topology: FrameTopology,
+    options: AnimatedOptions,
+    /// Quantisation: world = translation + scale · (q / 32767).
+    grid: Option<(Vec3, f32)>,
+    base: Option<BasePose>,
+    displacements: Columns,
+    normal_changes: Columns,
+    times: Vec<f32>,
+    bark_blends: Vec<f32>,
+    /// Leaves whose materials differ, their thresholds and the first
+    /// sample at which each one's blend reached its threshold.
+    fading: Vec<u32>,
+    thresholds: Vec<f32>,
+    swaps: Vec<Option<u32>>,
+    /// Vertical extent of the samples: lowest and highest `y` of each.
+    heights: f32,
+}
+
+/// The first frame as the file stores it, and what the document needs of
+/// the meshes besides positions.
+struct BasePose {
+    /// Positions and normals as a player reads them back (dequantised for
+    /// the quantised encodings): displacements are taken from these.
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    q_positions: Vec<[i16; 3]>,
+    q_normals: Vec<[i8; 3]>,
+    branch_vertices: usize,
+    branch_uvs: Vec<Vec2>,
+    branch_indices: Vec<u32>,
+    /// Leaf texture coordinates in the first and in the second material's
+    /// outline.
+    leaf_uvs: [Vec<Vec2>; 2],
+    leaf_indices: Vec<u32>,
+}
+
+impl BasisGlbBuilder {
+    /// Plans the meshes of `topology` (as [`crate::animated::AnimatedGlbBuilder::new`]:
+    /// `bounds` matter for the quantised encodings only; pass the per-node
+    /// maximum radius as `reference_radii`). [`AnimatedOptions::keyframes`]
+    /// is only a capacity hint here: every frame pushed is a sample.
+    pub fn new(
+        topology: &FrameTopology,
+        reference_radii: &[f32],
+        bounds: Aabb,
+        options: &AnimatedOptions,
+    ) -> Result<BasisGlbBuilder, EncodeError> {
+        check_duration(options)?;
+        let grid = grid(bounds, options.encoding)?;
+        let meshes = FrameMeshes::new(topology, reference_radii, &options.mesh)?;
+        let looks = Looks::new(topology, meshes.leaves(), 64);
+        let fading = fading_leaves(topology);
+        let rows = 3 * (meshes.branches().vertex_count() + meshes.leaves().vertex_count());
+        let capacity = options.keyframes.clamp(2, 1024);
+        Ok(BasisGlbBuilder {
+            thresholds: fading.iter().map(|&i| threshold(i)).collect(),
+            swaps: vec![None; fading.len()],
+            fading,
+            meshes,
+            looks,
+            topology: topology.clone(),
+            options: options.clone(),
+            grid,
+            base: None,
+            displacements: Columns::new(rows, capacity),
+            normal_changes: Columns::new(rows, capacity),
+            times: Vec::new(),
+            bark_blends: Vec::new(),
+            heights: 0.0,
+        })
+    }
+
+    /// Frames pushed so far.
+    pub fn sample_count(&self) -> usize {
+        self.times.len()
+    }
+
+    /// Adds the next sample (its time `frame.t · duration` must be later
+    /// than the previous one's).
+    pub fn push(&mut self, frame: &Frame) -> Result<(), EncodeError> {
+        check_frame(
+            frame,
+            self.topology.node_count(),
+            self.topology.leaves.len(),
+        )?;
+        let time = frame.t * self.options.duration;
+        if let Some(&last) = self.times.last()
+            && time <= last
+        {
+            return Err(EncodeError::Usage(format!(
+                "sample times must increase: t = {} after a sample at {last} s",
+                frame.t
+            )));
+        }
+        if self.times.len() >= 4096 {
+            return Err(EncodeError::TooLarge(
+                "at most 4,096 frames can be sampled into one animation".into(),
+            ));
+        }
+        let (branches, leaves) = self.meshes.mesh(frame)?;
+        let positions = [&branches.positions[..], &leaves.positions[..]].concat();
+        let normals = [&branches.normals[..], &leaves.normals[..]].concat();
+        if self.base.is_none() {
+            let base = self.base_pose(&positions, &normals)?;
+            self.base = Some(base);
+        }
+        self.record(frame, time, &positions, &normals)
+    }
+
+    /// The first frame as stored, with the meshes' UVs and indices.
+    fn base_pose(&self, positions: &[Vec3], normals: &[Vec3]) -> Result<BasePose, EncodeError> {
+        let branches = self.meshes.branches().buffers();
+        let leaves = self.meshes.leaves().buffers();
+        let (positions, normals, q_positions, q_normals) = match self.grid {
+            None => (positions.to_vec(), normals.to_vec(), Vec::new(), Vec::new()),
+            Some((t, s)) => {
+                let q: Vec<[i16; 3]> = positions
+                    .iter()
+                    .map(|&p| quantise(p, t, s))
+                    .collect::<Option<_>>()
+                    .ok_or_else(outside)?;
+                let qn: Vec<[i8; 3]> = normals.iter().map(|&n| quantise_normal(n)).collect();
+                let p = q
+                    .iter()
+                    .map(|q| t + s * Vec3::from(q.map(f32::from)) / 32_767.0)
+                    .collect();
+                let n = qn
+                    .iter()
+                    .map(|q| Vec3::from(q.map(f32::from)) / 127.0)
+                    .collect();
+                (p, n, q, qn)
+            }
+        };
+        Ok(BasePose {
+            positions,
+            normals,
+            q_positions,
+            q_normals,
+            branch_vertices: branches.positions.len(),
+            branch_uvs: branches.uvs.clone(),
+            branch_indices: branches.indices.clone(),
+            leaf_uvs: [leaves.uvs.clone(), self.second_uvs()],
+            leaf_indices: leaves.indices.clone(),
+        })
+    }
+
+    /// Leaf texture coordinates in each leaf's second material's outline.
+    fn second_uvs(&self) -> Vec<Vec2> {
+        let leaves = self.meshes.leaves();
+        let uvs = &leaves.buffers().uvs;
+        let per = leaves.shape().vertices_per_leaf();
+        let mut out = uvs.clone();
+        for (l, leaf) in self.topology.leaves.iter().enumerate() {
+            if let Some(c) = leaves.contours().get(leaf.materials[1] as usize) {
+                for (o, uv) in out[l * per..(l + 1) * per]
+                    .iter_mut()
+                    .zip(c.fan().map(LeafContour::uv))
+                {
+                    *o = uv;
+                }
+            }
+        }
+        out
+    }
+
+    /// Records a sample: its displacements from the base, its time, bark
+    /// blend, leaf swaps and height.
+    fn record(
+        &mut self,
+        frame: &Frame,
+        time: f32,
+        positions: &[Vec3],
+        normals: &[Vec3],
+    ) -> Result<(), EncodeError> {
+        let Some(base) = &self.base else {
+            return Err(EncodeError::Internal("no base pose".into()));
+        };
+        let (lo, hi) = positions
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.y), hi.max(p.y))
+            });
+        if hi >= lo {
+            self.heights = self.heights.max(hi - lo);
+        }
+        extend_differences(&mut self.displacements, positions, &base.positions);
+        extend_differences(&mut self.normal_changes, normals, &base.normals);
+        let sample = self.times.len() as u32;
+        for ((slot, &leaf), &h) in self
+            .swaps
+            .iter_mut()
+            .zip(&self.fading)
+            .zip(&self.thresholds)
+        {
+            if slot.is_none() && frame.leaves[leaf as usize].blend >= h {
+                *slot = Some(sample);
+            }
+        }
+        self.times.push(time);
+        self.bark_blends.push(frame.bark_blend);
+        Ok(())
+    }
+
+    /// The GLB and what the basis reached. Errors: [`EncodeError::Usage`]
+    /// with fewer than two samples.
+    pub fn finish(self) -> Result<(Vec<u8>, BasisReport), EncodeError> {
+        let mut out = Vec::new();
+        let (doc, root, report) = self.document()?;
+        doc.write(root, &mut out).map_err(|total| {
+            EncodeError::TooLarge(format!(
+                "the animated GLB would be {total} bytes; a GLB holds at most 4 GiB"
+            ))
+        })?;
+        Ok((out, report))
+    }
+
+    /// Streams the GLB to `w`; returns its size in bytes and the report.
+    pub fn finish_to(self, w: &mut impl Write) -> Result<(u64, BasisReport), EncodeError> {
+        let (doc, root, report) = self.document()?;
+        let len = doc.write_to(root, w).map_err(|e| match e.kind() {
+            std::io::ErrorKind::InvalidInput => EncodeError::TooLarge(e.to_string()),
+            _ => EncodeError::Io(e.to_string()),
+        })?;
+        Ok((len, report))
+    }
+
+    fn document(mut self) -> Result<(Doc<'static>, Map<String, Value>, BasisReport), EncodeError> {
+        if self.times.len() < 2 {
+            return Err(EncodeError::Usage(format!(
+                "an animation needs at least 2 frames; got {}",
+                self.times.len()
+            )));
+        }
+        let base = self.base.take().expect("a pushed frame sets the base");
+        let (targets, report) = self.fit();
+        let encoding = self.options.encoding;
+        let mut w = Writer::new(encoding);
+        let bark_looks = self.write_materials(&mut w.doc);
+        let vertices = write_vertices(&mut w, &base, &targets);
+        let plans = appearance::plan(&appearance::Inputs {
+            base: &base.positions[..base.branch_vertices],
+            branch_indices: &base.branch_indices,
+            leaf_indices: &base.leaf_indices,
+            per_leaf: self.meshes.leaves().shape().vertices_per_leaf(),
+            topology: &self.topology,
+            fading: &self.fading,
+            swaps: &self.swaps,
+            times: &self.times,
+            bark_blends: &self.bark_blends,
+            bark_looks,
+        });
+        let nodes = write_nodes(&mut w, &plans, &vertices, &target_names(&targets));
+        write_animation(&mut w.doc, &self.times, &targets, &plans, &nodes);
+        let mut doc = w.into_doc();
+        let mut tree =
+            json!({ "name": "tree", "children": nodes.iter().map(|n| n.0).collect::<Vec<_>>() });
+        if let Some((t, s)) = self.grid {
+            tree["translation"] = json!(t.to_array());
+            tree["scale"] = json!([s, s, s]);
+        }
+        doc.nodes.push(tree);
+        let root_node = doc.nodes.len() - 1;
+        let mut root = Map::new();
+        root.insert("asset".into(), asset());
+        root.insert("scene".into(), json!(0));
+        root.insert(
+            "scenes".into(),
+            json!([{
+                "nodes": [root_node],
+                "extras": { "treemorph": {
+                    "animation": "basis",
+                    "targets": report.targets,
+                    "max_error": report.max_error,
+                    "within_budget": report.within_budget,
+                    "error_budget": ERROR_BUDGET,
+                }},
+            }]),
+        );
+        Ok((doc, root, report))
+    }
+
+    /// The principal displacements, cut to the fewest that keep within the
+    /// budget, in the file's encoding, and the error of what is written.
+    fn fit(&mut self) -> (Targets, BasisReport) {
+        let principal = motion::principal(&self.displacements, &self.normal_changes, MAX_TARGETS);
+        let errors = motion::max_errors(
+            &self.displacements,
+            &principal.positions,
+            &principal.weights,
+            principal.count,
+        );
+        let height = self.heights.max(1e-6);
+        let budget = ERROR_BUDGET * height;
+        let k = errors
+            .iter()
+            .position(|&e| e <= budget)
+            .unwrap_or(principal.count);
+        let targets = Targets::encode(&principal, k, self.grid);
+        let written = motion::max_errors(
+            &self.displacements,
+            &targets.read_back,
+            &targets.weights_read_back,
+            targets.stored.len(),
+        );
+        let error = written.last().copied().unwrap_or(0.0);
+        // Free the samples before the document is written.
+        self.displacements = Columns::default();
+        self.normal_changes = Columns::default();
+        let report = BasisReport {
+            targets: k,
+            max_error: error / height,
+            within_budget: error <= budget,
+            height,
+        };
+        (targets, report)
+    }
+
+    /// Materials: the bark looks of the first and (when it differs) the
+    /// last sample, then every leaf material. Returns how many bark looks
+    /// there are (leaf material `m` is glTF material `bark_looks + m`).
+    fn write_materials(&mut self, doc: &mut Doc<'static>) -> usize {
+        let first = self.looks.step(self.bark_blends[0]);
+        let last = self
+            .looks
+            .step(*self.bark_blends.last().expect("two samples"));
+        let mut looks = vec![self.looks.bark(first).clone()];
+        if self.looks.bark(last) != &looks[0] {
+            looks.push(self.looks.bark(last).clone());
+        }
+        let bark_looks = looks.len();
+        looks.extend((0..self.topology.leaf_materials.len() as u32).map(|m| self.looks.leaf(m)));
+        for (i, look) in looks.iter().enumerate() {
+            let leaf = i >= bark_looks;
+            let wrap = if leaf { Wrap::Clamp } else { Wrap::Repeat };
+            let texture = look
+                .texture
+                .as_ref()
+                .map(|t| doc.texture(Data::Owned(t.png().to_vec()), &look.name, wrap));
+            doc.materials.push(material_json(look, texture, leaf));
+        }
+        bark_looks
+    }
+}
+
+/// Appends `values − base` as one planar column.
+fn extend_differences(columns: &mut Columns, values: &[Vec3], base: &[Vec3]) {
+    for axis in 0..3 {
+        columns
+            .data
+            .extend(values.iter().zip(base).map(|(v, b)| v[axis] - b[axis]));
+    }
+}
+
+/// The morph targets as written.
+///
+/// Principal weights are signed and unbounded, but Blender's importer
+/// clamps shape-key values to [0, 1] (it widens a key's range by the
+/// first keyframe's weight only). So each target is scaled by its weight
+/// range and its weights mapped onto [0, 1]: `w = lo + w′ · range`. The
+/// constant part `Σ lo_k · target_k` becomes one more target, the *rest
+/// offset*, first in the file, at weight 1 throughout. The base mesh stays
+/// the first frame, exactly.
+struct Targets {
+    /// The rest offset (when any weight range starts below zero), then
+    /// the motion targets.
+    stored: Vec<StoredTarget>,
+    /// Written weights, `[frame · stored.len() + k]`.
+    weights: Vec<f32>,
+    /// The stored positions as a player reads them back (world units) and
+    /// the weights that go with them, for measuring the written error.
+    read_back: Columns,
+    weights_read_back: Vec<f32>,
+    /// Whether the first target is the rest offset.
+    offset: bool,
+}
+
+/// One target's positions and normals as written.
+enum StoredTarget {
+    Float(Vec<Vec3>, Vec<Vec3>),
+    /// Normalised `i16` positions in the grid's mesh space, normalised
+    /// `i8` normal changes.
+    Quantised(Vec<[i16; 3]>, Vec<[i8; 3]>),
+}
+
+impl Targets {
+    /// The first `k` targets of `p`, offset and scaled as the type docs
+    /// say, in the encoding of `grid` (none: floats).
+    fn encode(p: &motion::Principal, k: usize, grid: Option<(Vec3, f32)>) -> Targets {
+        let frames = p.weights.len().checked_div(p.count).unwrap_or(0);
+        let weight = |j: usize, t: usize| p.weights[j * p.count + t];
+        let ranges: Vec<(f32, f32)> = (0..k)
+            .map(|t| {
+                let (lo, hi) = (0..frames).fold((0f32, 0f32), |(lo, hi), j| {
+                    (lo.min(weight(j, t)), hi.max(weight(j, t)))
+                });
+                (lo, (hi - lo).max(1e-12))
+            })
+            .collect();
+        let offset = ranges.iter().any(|&(lo, _)| lo < 0.0);
+        let mut columns: Vec<(Vec<f32>, Vec<f32>)> = Vec::with_capacity(k + 1);
+        if offset {
+            let mut pos = vec![0f32; p.positions.rows];
+            let mut nrm = vec![0f32; p.positions.rows];
+            for (t, &(lo, _)) in ranges.iter().enumerate() {
+                add_scaled(&mut pos, p.positions.column(t), lo);
+                add_scaled(&mut nrm, p.normals.column(t), lo);
+            }
+            columns.push((pos, nrm));
+        }
+        for (t, &(_, range)) in ranges.iter().enumerate() {
+            let scaled = |c: &[f32]| c.iter().map(|v| v * range).collect::<Vec<f32>>();
+            columns.push((scaled(p.positions.column(t)), scaled(p.normals.column(t))));
+        }
+        let unit: Vec<f32> = (0..frames)
+            .flat_map(|j| {
+                let first = offset.then_some(1.0);
+                first.into_iter().chain(
+                    ranges
+                        .iter()
+                        .enumerate()
+                        .map(move |(t, &(lo, range))| (weight(j, t) - lo) / range),
+                )
+            })
+            .collect();
+        Targets::store(columns, unit, grid, offset)
+    }
+
+    /// Stores `columns` (world units) with weights `unit` in [0, 1].
+    fn store(
+        columns: Vec<(Vec<f32>, Vec<f32>)>,
+        unit: Vec<f32>,
+        grid: Option<(Vec3, f32)>,
+        offset: bool,
+    ) -> Targets {
+        let count = columns.len();
+        let rows = columns.first().map_or(0, |c| c.0.len());
+        let mut weights = unit.clone();
+        let mut read_back = Columns::new(rows, count);
+        let mut stored = Vec::with_capacity(count);
+        for (t, (pos, nrm)) in columns.into_iter().enumerate() {
+            match grid {
+                None => {
+                    read_back.data.extend_from_slice(&pos);
+                    stored.push(StoredTarget::Float(as_vec3(&pos), as_vec3(&nrm)));
+                }
+                Some((_, s)) => {
+                    let (target, back, scale) = quantised_target(&pos, &nrm, s);
+                    read_back.data.extend(back);
+                    stored.push(target);
+                    for w in weights.iter_mut().skip(t).step_by(count) {
+                        *w *= scale;
+                    }
+                }
+            }
+        }
+        Targets {
+            stored,
+            weights_read_back: unit,
+            weights,
+            read_back,
+            offset,
+        }
+    }
+}
+
+fn add_scaled(to: &mut [f32], from: &[f32], by: f32) {
+    for (t, f) in to.iter_mut().zip(from) {
+        *t += f * by;
+    }
+}
+
+/// The VEC3s of a planar column.
+fn as_vec3(values: &[f32]) -> Vec<Vec3> {
+    let n = values.len() / 3;
+    (0..n)
+        .map(|i| Vec3::new(values[i], values[n + i], values[2 * n + i]))
+        .collect()
+}
+
+/// A target as normalised `i16` positions in the mesh space of a grid of
+/// scale `s` and normalised `i8` normal changes. Positions that fit the
+/// range are stored as they are (weight scale 1, so weights stay in
+/// [0, 1]); larger ones are divided by their largest component, which the
+/// weights carry back. Normal changes are divided by the same scale and
+/// clamped to the range: a normal turned by more than about 60° along one
+/// target shades slightly off, never the geometry; their 1/127 steps are
+/// below what shading shows. Returns the target, its positions read back
+/// in world units and the weight scale.
+fn quantised_target(positions: &[f32], normals: &[f32], s: f32) -> (StoredTarget, Vec<f32>, f32) {
+    let largest = positions.iter().fold(0f32, |m, x| m.max(x.abs() / s));
+    let scale = largest.max(1.0);
+    let q = |v: f32| {
+        (v / s / scale * 32_767.0)
+            .round()
+            .clamp(-32_767.0, 32_767.0) as i16
+    };
+    let qp: Vec<[i16; 3]> = as_vec3(positions)
+        .iter()
+        .map(|c| [q(c.x), q(c.y), q(c.z)])
+        .collect();
+    let qn: Vec<[i8; 3]> = as_vec3(normals)
+        .iter()
+        .map(|c| {
+            c.to_array()
+                .map(|v| (v / scale * 127.0).round().clamp(-127.0, 127.0) as i8)
+        })
+        .collect();
+    let n = qp.len();
+    let mut back = vec![0f32; 3 * n];
+    for (i, v) in qp.iter().enumerate() {
+        for a in 0..3 {
+            back[a * n + i] = f32::from(v[a]) / 32_767.0 * scale * s;
+        }
+    }
+    (StoredTarget::Quantised(qp, qn), back, scale)
+}
+
+/// Accessors of one vertex set (branches or leaves).
+#[derive(Clone, Debug, Default)]
+struct VertexSet {
+    count: usize,
+    position: usize,
+    normal: usize,
+    /// TEXCOORD_0 accessors: the first material's, and (leaves) the
+    /// second material's outline.
+    uvs: [usize; 2],
+    targets: Vec<Value>,
+}
+
+/// The branch and leaf vertex accessors shared by every node.
+struct Vertices {
+    branches: Option<VertexSet>,
+    leaves: Option<VertexSet>,
+}
+
+fn write_vertices(w: &mut Writer, base: &BasePose, targets: &Targets) -> Vertices {
+    let nb = base.branch_vertices;
+    let n = base.positions.len();
+    let branches = (nb > 0 && !base.branch_indices.is_empty()).then(|| {
+        write_vertex_set(
+            w,
+            base,
+            targets,
+            0..nb,
+            [&base.branch_uvs, &base.branch_uvs],
+        )
+    });
+    let leaves = (n > nb && !base.leaf_indices.is_empty()).then(|| {
+        let [a, b] = &base.leaf_uvs;
+        write_vertex_set(w, base, targets, nb..n, [a, b])
+    });
+    Vertices { branches, leaves }
+}
+
+fn write_vertex_set(
+    w: &mut Writer,
+    base: &BasePose,
+    targets: &Targets,
+    range: std::ops::Range<usize>,
+    uvs: [&Vec<Vec2>; 2],
+) -> VertexSet {
+    let count = range.len();
+    let quantised = w.encoding != AnimatedEncoding::Float;
+    let (position, normal) = if quantised {
+        let q = &base.q_positions[range.clone()];
+        let (lo, hi) = i16_bounds(q);
+        let p = meshopt_if(w.encoding, i16x4_bytes(q), 8);
+        let n = meshopt_if(w.encoding, i8x4_bytes(&base.q_normals[range.clone()]), 4);
+        (
+            w.attribute(count, p, Attr::Vec3I16, Some((lo, hi))),
+            w.attribute(count, n, Attr::Vec3I8, None),
+        )
+    } else {
+        let p = &base.positions[range.clone()];
+        let b = crate::mesh::bounds_of(p);
+        let bounds = (
+            b.min.to_array().map(f64::from),
+            b.max.to_array().map(f64::from),
+        );
+        (
+            w.attribute(count, vec3_bytes(p), Attr::Vec3F32, Some(bounds)),
+            w.attribute(
+                count,
+                vec3_bytes(&base.normals[range.clone()]),
+                Attr::Vec3F32,
+                None,
+            ),
+        )
+    };
+    let mut uv_accessors = [0; 2];
+    for (i, uv) in uvs.iter().enumerate() {
+        uv_accessors[i] = if i == 1 && std::ptr::eq(uvs[0], uvs[1]) {
+            uv_accessors[0]
+        } else {
+            uv_attribute(w, uv)
+        };
+    }
+    let targets = targets
+        .stored
+        .iter()
+        .map(|t| {
+            let (pa, na) = match t {
+                StoredTarget::Float(p, n) => {
+                    let (p, n) = (&p[range.clone()], &n[range.clone()]);
+                    let b = crate::mesh::bounds_of(p);
+                    let bounds = (
+                        b.min.to_array().map(f64::from),
+                        b.max.to_array().map(f64::from),
+                    );
+                    (
+                        w.attribute(count, vec3_bytes(p), Attr::Vec3F32, Some(bounds)),
+                        w.attribute(count, vec3_bytes(n), Attr::Vec3F32, None),
+                    )
+                }
+                StoredTarget::Quantised(p, n) => {
+                    let (p, n) = (&p[range.clone()], &n[range.clone()]);
+                    let bounds = i16_bounds(p);
+                    let pb = meshopt_if(w.encoding, i16x4_bytes(p), 8);
+                    let nb = meshopt_if(w.encoding, i8x4_bytes(n), 4);
+                    (
+                        w.attribute(count, pb, Attr::Vec3I16, Some(bounds)),
+                        w.attribute(count, nb, Attr::Vec3I8, None),
+                    )
+                }
+            };
+            json!({ "POSITION": pa, "NORMAL": na })
+        })
+        .collect();
+    VertexSet {
+        count,
+        position,
+        normal,
+        uvs: uv_accessors,
+        targets,
+    }
+}
+
+/// A texture coordinate accessor: normalised `u16` in the quantised
+/// encodings when every coordinate is in [0, 1] (leaves), else floats
+/// (bark coordinates run beyond 1 along a branch).
+fn uv_attribute(w: &mut Writer, uvs: &[Vec2]) -> usize {
+    let unit = uvs
+        .iter()
+        .all(|v| (0.0..=1.0).contains(&v.x) && (0.0..=1.0).contains(&v.y));
+    if w.encoding == AnimatedEncoding::Float || !unit {
+        let bytes: Vec<u8> = uvs
+            .iter()
+            .flat_map(|v| v.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        return w.attribute(uvs.len(), bytes, Attr::Vec2F32, None);
+    }
+    let bytes: Vec<u8> = uvs
+        .iter()
+        .flat_map(|v| v.to_array().map(|c| (c * 65_535.0).round() as u16))
+        .flat_map(u16::to_le_bytes)
+        .collect();
+    let bytes = meshopt_if(w.encoding, bytes, 4);
+    w.attribute(uvs.len(), bytes, Attr::Vec2U16, None)
+}
+
+/// `bytes` compressed with meshopt's attribute codec for the meshopt
+/// encoding (elements of `stride` bytes), else as they are.
+fn meshopt_if(encoding: AnimatedEncoding, bytes: Vec<u8>, stride: usize) -> Vec<u8> {
+    if encoding != AnimatedEncoding::Meshopt {
+        return bytes;
+    }
+    match stride {
+        4 => compress::<4>(&bytes),
+        _ => compress::<8>(&bytes),
+    }
+}
+
+/// Morph target names: the rest offset, then `motion 0`, `motion 1`, …
+fn target_names(targets: &Targets) -> Vec<String> {
+    let motions = targets.stored.len() - usize::from(targets.offset);
+    let offset = targets.offset.then(|| "rest offset".to_string());
+    offset
+        .into_iter()
+        .chain((0..motions).map(|k| format!("motion {k}")))
+        .collect()
+}
+
+/// Writes a node (with its mesh) per plan; returns each node's index and
+/// whether it has a mesh.
+fn write_nodes(
+    w: &mut Writer,
+    plans: &[NodePlan],
+    vertices: &Vertices,
+    target_names: &[String],
+) -> Vec<(usize, bool)> {
+    let target_count = target_names.len();
+    plans
+        .iter()
+        .map(|plan| {
+            let set = if plan.leaves {
+                vertices.leaves.as_ref()
+            } else {
+                vertices.branches.as_ref()
+            };
+            let mut node = json!({ "name": plan.name });
+            let mut has_mesh = false;
+            if let Some(set) = set {
+                let prims: Vec<Value> = plan
+                    .primitives
+                    .iter()
+                    .filter(|(_, indices)| !indices.is_empty())
+                    .map(|(&(material, uv), indices)| {
+                        let accessor =
+                            index_accessor(&mut w.doc, &mut w.fallback_len, indices, set.count, w.encoding);
+                        let mut p = json!({
+                            "attributes": { "POSITION": set.position, "NORMAL": set.normal, "TEXCOORD_0": set.uvs[uv] },
+                            "indices": accessor,
+                            "material": material,
+                            "mode": crate::gl::TRIANGLES,
+                        });
+                        if target_count > 0 {
+                            p["targets"] = json!(set.targets);
+                        }
+                        p
+                    })
+                    .collect();
+                if !prims.is_empty() {
+                    let mut mesh = json!({ "name": plan.name, "primitives": prims });
+                    if target_count > 0 {
+                        mesh["weights"] = json!(vec![0.0; target_count]);
+                        mesh["extras"] = json!({ "targetNames": target_names });
+                    }
+                    w.doc.meshes.push(mesh);
+                    node["mesh"] = json!(w.doc.meshes.len() - 1);
+                    has_mesh = true;
+                }
+            }
+            if matches!(plan.show, Show::From(_)) {
+                node["scale"] = json!([0.0, 0.0, 0.0]);
+            }
+            w.doc.nodes.push(node);
+            (w.doc.nodes.len() - 1, has_mesh)
+        })
+        .collect()
+}
+
+/// The animation: the weights of every mesh node (one LINEAR sampler
+/// keyed at every sample), and every swap node's scale (STEP).
+fn write_animation(
+    doc: &mut Doc<'static>,
+    times: &[f32],
+    targets: &Targets,
+    plans: &[NodePlan],
+    nodes: &[(usize, bool)],
+) {
+    let mut samplers = Vec::new();
+    let mut channels = Vec::new();
+    if !targets.stored.is_empty() {
+        let input = time_accessor(doc, times);
+        let view = doc.view(Data::Owned(f32_bytes(&targets.weights)), None, None);
+        let output = doc.accessor(json!({
+            "bufferView": view, "componentType": FLOAT, "count": targets.weights.len(), "type": "SCALAR",
+        }));
+        samplers.push(json!({ "input": input, "output": output, "interpolation": "LINEAR" }));
+        for &(node, has_mesh) in nodes {
+            if has_mesh {
+                channels
+                    .push(json!({ "sampler": 0, "target": { "node": node, "path": "weights" } }));
+            }
+        }
+    }
+    let mut scales: Option<[usize; 2]> = None;
+    let mut inputs = std::collections::HashMap::new();
+    for (plan, &(node, has_mesh)) in plans.iter().zip(nodes) {
+        let (time, show) = match plan.show {
+            Show::Always => continue,
+            Show::Until(t) => (t, false),
+            Show::From(t) => (t, true),
+        };
+        if !has_mesh {
+            continue;
+        }
+        let [hide, reveal] = *scales.get_or_insert_with(|| {
+            let mut v = |a: f32, b: f32| -> usize {
+                let view = doc.view(Data::Owned(f32_bytes(&[a, a, a, b, b, b])), None, None);
+                doc.accessor(json!({
+                    "bufferView": view, "componentType": FLOAT, "count": 2, "type": "VEC3",
+                }))
+            };
+            [v(1.0, 0.0), v(0.0, 1.0)]
+        });
+        let input = *inputs
+            .entry(time.to_bits())
+            .or_insert_with(|| time_accessor(doc, &[times[0], time]));
+        samplers.push(json!({
+            "input": input, "output": if show { reveal } else { hide }, "interpolation": "STEP",
+        }));
+        channels.push(json!({
+            "sampler": samplers.len() - 1, "target": { "node": node, "path": "scale" },
+        }));
+    }
+    if !channels.is_empty() {
+        doc.animations
+            .push(json!({ "name": "morph", "samplers": samplers, "channels": channels }));
+    }
+}
+
+/// A SCALAR float accessor of increasing times.
+fn time_accessor(doc: &mut Doc<'static>, times: &[f32]) -> usize {
+    let view = doc.view(Data::Owned(f32_bytes(times)), None, None);
+    doc.accessor(json!({
+        "bufferView": view, "componentType": FLOAT, "count": times.len(), "type": "SCALAR",
+        "min": [times[0]], "max": [times[times.len() - 1]],
+    }))
+}
+
+#[cfg(test)]
+#[path = "basis_tests.rs"]
+mod tests;

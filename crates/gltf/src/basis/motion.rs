@@ -1,0 +1,308 @@
+//! A sequence's vertex motion as a few principal displacements.
+//!
+//! The displacements of every sampled frame from the base pose are the
+//! columns of a matrix `D` (three rows per vertex, one column per frame).
+//! Its left singular vectors are an orthonormal basis of the motion,
+//! ordered by how much of it they carry; the first `K` of them with the
+//! frames' coordinates in them reproduce every frame as closely as any `K`
+//! shapes can in the least-squares sense. They come from the eigenvectors
+//! of the frames' Gram matrix `G = DᵀD` (frames × frames, tiny): with
+//! `G = V Λ Vᵀ`, target `k` is `D v_k / σ_k` and frame `j`'s weight on it
+//! is `σ_k v_jk` (`σ_k = √λ_k`). Normals ride along: normal target `k` is
+//! the same combination `ND v_k / σ_k` of the frames' normal changes, so a
+//! frame's normals are the projection of its true normal change onto the
+//! motion's span.
+//!
+//! The least-squares optimum is not what a viewer must hold: the budget is
+//! a *largest* vertex error. So [`max_errors`] measures, for every `K` up
+//! to the maximum, the largest distance of any vertex of any frame from its
+//! reconstruction with the targets as they will be stored (quantised ones
+//! dequantised), and the caller takes the smallest `K` within budget.
+//!
+//! faer multiplies the matrices (`f32`, as the meshes are); the Gram matrix
+//! is summed over row blocks in parallel, as faer is built here without
+//! its own threads, and decomposed in `f64`.
+
+use faer::{Mat, MatRef, Side};
+use rayon::prelude::*;
+
+/// Vertices per block of the parallel passes: a block's 60 frames are
+/// about 700 KB, within a core's L2 cache.
+const BLOCK_VERTICES: usize = 1024;
+
+/// Columns of per-vertex VEC3 values, one per frame, stored column-major
+/// (`rows = 3 · vertices`), each column **planar**: every vertex's `x`,
+/// then every `y`, then every `z`. The basis does not depend on the row
+/// order, and planar rows let [`max_errors`] compute vertex distances
+/// with vector instructions.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Columns {
+    pub(crate) rows: usize,
+    pub(crate) data: Vec<f32>,
+}
+
+impl Columns {
+    pub(crate) fn new(rows: usize, capacity: usize) -> Columns {
+        Columns {
+            rows,
+            data: Vec::with_capacity(rows * capacity),
+        }
+    }
+
+    pub(crate) fn count(&self) -> usize {
+        self.data.len().checked_div(self.rows).unwrap_or(0)
+    }
+
+    fn matrix(&self) -> MatRef<'_, f32> {
+        MatRef::from_column_major_slice(&self.data, self.rows, self.count())
+    }
+
+    pub(crate) fn column(&self, j: usize) -> &[f32] {
+        &self.data[j * self.rows..(j + 1) * self.rows]
+    }
+}
+
+/// The principal displacements of a sequence.
+#[derive(Clone, Debug)]
+pub(crate) struct Principal {
+    /// Position targets: `rows × count`, column-major.
+    pub(crate) positions: Columns,
+    /// Normal targets, the same shape.
+    pub(crate) normals: Columns,
+    /// Frame `j`'s weight on target `k` at `weights[j · count + k]`.
+    pub(crate) weights: Vec<f32>,
+    pub(crate) count: usize,
+}
+
+/// At most `max` principal displacements of `d` (and the matching normal
+/// combinations of `nd`), largest first. Directions whose share of the
+/// motion is below `f32` precision are left out, so a still sequence has
+/// none.
+pub(crate) fn principal(d: &Columns, nd: &Columns, max: usize) -> Principal {
+    let frames = d.count();
+    let gram = gram(d);
+    let (sigmas, v) = largest_eigen(&gram, max);
+    let count = sigmas.len();
+    let mut project = Mat::<f32>::zeros(frames, count);
+    let mut weights = vec![0f32; frames * count];
+    for (k, &s) in sigmas.iter().enumerate() {
+        for j in 0..frames {
+            project[(j, k)] = (v[(j, k)] / s) as f32;
+            weights[j * count + k] = (v[(j, k)] * s) as f32;
+        }
+    }
+    Principal {
+        positions: multiply(d, project.as_ref()),
+        normals: multiply(nd, project.as_ref()),
+        weights,
+        count,
+    }
+}
+
+/// `DᵀD` in `f64`: row blocks multiplied in parallel, summed in order.
+fn gram(d: &Columns) -> Mat<f64> {
+    let frames = d.count();
+    let m = d.matrix();
+    let rows = d.rows;
+    let block = (3 * BLOCK_VERTICES * 16).max(1);
+    let blocks: Vec<usize> = (0..rows.div_ceil(block)).collect();
+    let parts: Vec<Mat<f64>> = blocks
+        .par_iter()
+        .map(|&b| {
+            let start = b * block;
+            let part = m.subrows(start, block.min(rows - start));
+            let g = part.transpose() * part;
+            Mat::<f64>::from_fn(frames, frames, |i, j| f64::from(g[(i, j)]))
+        })
+        .collect();
+    // Summed in block order: rayon's own reduction associates as threads
+    // happen to steal work, and the same sequence must give the same
+    // bytes every time.
+    parts
+        .into_iter()
+        .fold(Mat::<f64>::zeros(frames, frames), |a, b| a + b)
+}
+
+/// The square roots of the `max` largest eigenvalues of `gram` that are
+/// meaningfully above zero, and their eigenvectors (columns).
+fn largest_eigen(gram: &Mat<f64>, max: usize) -> (Vec<f64>, Mat<f64>) {
+    let n = gram.nrows();
+    let Ok(eigen) = gram.self_adjoint_eigen(Side::Lower) else {
+        return (Vec::new(), Mat::zeros(n, 0));
+    };
+    let values = eigen.S().column_vector();
+    let largest = (0..n).map(|i| values[i]).fold(0f64, f64::max);
+    // f32 sums carry about 7 digits: below that share of the largest
+    // eigenvalue a direction is rounding noise.
+    let floor = largest * 1e-10;
+    let picked: Vec<usize> = (0..n)
+        .rev()
+        .filter(|&i| values[i] > floor && values[i] > 0.0)
+        .take(max)
+        .collect();
+    let u = eigen.U();
+    let v = Mat::<f64>::from_fn(n, picked.len(), |j, k| u[(j, picked[k])]);
+    (picked.iter().map(|&i| values[i].sqrt()).collect(), v)
+}
+
+/// `a · p` as columns.
+fn multiply(a: &Columns, p: MatRef<'_, f32>) -> Columns {
+    let out = a.matrix() * p;
+    let mut c = Columns::new(a.rows, p.ncols());
+    for k in 0..p.ncols() {
+        c.data.extend((0..a.rows).map(|i| out[(i, k)]));
+    }
+    c
+}
+
+/// For `K = 0 … count`, the largest distance between a vertex of a frame
+/// of `d` and its reconstruction from the first `K` columns of `targets`
+/// with `weights` (`weights[j · count + k]`).
+pub(crate) fn max_errors(
+    d: &Columns,
+    targets: &Columns,
+    weights: &[f32],
+    count: usize,
+) -> Vec<f32> {
+    let vertices = d.rows / 3;
+    let frames = d.count();
+    let blocks: Vec<usize> = (0..vertices.div_ceil(BLOCK_VERTICES)).collect();
+    let worst = blocks
+        .par_iter()
+        .map(|&b| {
+            let start = b * BLOCK_VERTICES;
+            let range = start..(start + BLOCK_VERTICES).min(vertices);
+            block_errors(d, targets, weights, count, range, frames)
+        })
+        .reduce(
+            || vec![0f32; count + 1],
+            |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
+        );
+    worst.into_iter().map(f32::sqrt).collect()
+}
+
+/// Vertices a [`block_errors`] step holds in registers.
+const LANES: usize = 16;
+
+/// [`max_errors`] (squared) over the vertices `range`. Each step takes
+/// [`LANES`] vertices, keeps their residual in registers and subtracts one
+/// target after another for every frame, so each displacement is read
+/// once and every `K`'s distance comes out of the same pass.
+fn block_errors(
+    d: &Columns,
+    targets: &Columns,
+    weights: &[f32],
+    count: usize,
+    range: std::ops::Range<usize>,
+    frames: usize,
+) -> Vec<f32> {
+    type Lanes = [f32; LANES];
+    let len = range.len().next_multiple_of(LANES);
+    // The block's displacements and targets, copied into runs of `len`
+    // per axis (zero-padded): a few long sequential reads of the big
+    // columns instead of scattered ones.
+    let local_d = gather(d, frames, &range, len);
+    let local_t = gather(targets, count, &range, len);
+    let lanes_of = |local: &[f32], column: usize, axis: usize, at: usize| -> Lanes {
+        let start = (column * 3 + axis) * len + at;
+        local[start..start + LANES]
+            .try_into()
+            .expect("LANES floats")
+    };
+    let mut worst: Vec<Lanes> = vec![[0.0; LANES]; count + 1];
+    let mut t: Vec<[Lanes; 3]> = vec![[[0.0; LANES]; 3]; count];
+    for at in (0..len).step_by(LANES) {
+        for (k, tk) in t.iter_mut().enumerate() {
+            *tk = [0, 1, 2].map(|a| lanes_of(&local_t, k, a, at));
+        }
+        for j in 0..frames {
+            let mut r = [0, 1, 2].map(|a| lanes_of(&local_d, j, a, at));
+            keep_largest(&mut worst[0], &r);
+            let frame_weights = &weights[j * count..(j + 1) * count];
+            for ((tk, &w), worst) in t.iter().zip(frame_weights).zip(&mut worst[1..]) {
+                subtract(&mut r, tk, w);
+                keep_largest(worst, &r);
+            }
+        }
+    }
+    worst
+        .iter()
+        .map(|lanes| lanes.iter().copied().fold(0.0, f32::max))
+        .collect()
+}
+
+/// The first `columns` columns of `c` restricted to the vertices `range`:
+/// per column, its `x`, `y` and `z` runs, each padded with zeros to `len`.
+fn gather(c: &Columns, columns: usize, range: &std::ops::Range<usize>, len: usize) -> Vec<f32> {
+    let n = c.rows / 3;
+    let mut out = vec![0f32; columns * 3 * len];
+    for j in 0..columns {
+        let column = c.column(j);
+        for a in 0..3 {
+            let to = (j * 3 + a) * len;
+            out[to..to + range.len()]
+                .copy_from_slice(&column[a * n + range.start..a * n + range.end]);
+        }
+    }
+    out
+}
+
+/// `r -= t · w`, lane by lane.
+#[inline(always)]
+fn subtract(r: &mut [[f32; LANES]; 3], t: &[[f32; LANES]; 3], w: f32) {
+    for (ra, ta) in r.iter_mut().zip(t) {
+        for (x, y) in ra.iter_mut().zip(ta) {
+            *x -= y * w;
+        }
+    }
+}
+
+/// Raises each lane of `worst` to the squared length of the lane's VEC3.
+#[inline(always)]
+fn keep_largest(worst: &mut [f32; LANES], r: &[[f32; LANES]; 3]) {
+    for l in 0..LANES {
+        let s = r[0][l] * r[0][l] + r[1][l] * r[1][l] + r[2][l] * r[2][l];
+        worst[l] = if s > worst[l] { s } else { worst[l] };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two vertices moving along two independent directions over five
+    /// frames: two targets reproduce every frame, one does not.
+    #[test]
+    fn two_motions_need_two_targets() {
+        let mut d = Columns::new(6, 5);
+        for j in 0..5 {
+            let a = j as f32;
+            let b = (j as f32 * 1.3).sin();
+            // Planar: x of both vertices, then y, then z.
+            d.data.extend([a, 0.0, 0.0, b, 0.0, 2.0 * b]);
+        }
+        let nd = d.clone();
+        let p = principal(&d, &nd, 16);
+        // Beyond the two true directions only f32 rounding noise is left.
+        assert!(p.count >= 2);
+        let errors = max_errors(&d, &p.positions, &p.weights, p.count);
+        assert!(errors[0] >= 4.0 - 1e-4, "{errors:?}");
+        assert!(errors[1] > 0.1, "{errors:?}");
+        assert!(errors[2] < 1e-5, "{errors:?}");
+        // Orthonormal targets.
+        let t0 = p.positions.column(0);
+        let t1 = p.positions.column(1);
+        let dot: f32 = t0.iter().zip(t1).map(|(a, b)| a * b).sum();
+        let n0: f32 = t0.iter().map(|a| a * a).sum();
+        assert!(dot.abs() < 1e-5 && (n0 - 1.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_still_sequence_has_no_targets() {
+        let mut d = Columns::new(3, 3);
+        d.data.extend([0.0; 9]);
+        let p = principal(&d, &d.clone(), 16);
+        assert_eq!(p.count, 0);
+        assert_eq!(max_errors(&d, &p.positions, &p.weights, 0), vec![0.0]);
+    }
+}

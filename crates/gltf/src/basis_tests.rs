@@ -1,0 +1,374 @@
+use glam::Vec3;
+use serde_json::Value;
+use treemorph_generate::{GenerateOptions, Preset, generate};
+
+use super::*;
+use crate::bench::Sway;
+use crate::test_support::Parsed;
+
+fn sway(frames: usize) -> Sway {
+    let tree = generate(&GenerateOptions::new(Preset::Maple, 3).with_size(300)).unwrap();
+    Sway::new(&tree, frames)
+}
+
+fn build(sway: &Sway, options: &AnimatedOptions) -> (Vec<u8>, BasisReport) {
+    let mut b = BasisGlbBuilder::new(
+        sway.topology(),
+        sway.reference_radii(),
+        sway.bounds(),
+        options,
+    )
+    .unwrap();
+    for i in 0..sway.len() {
+        b.push(&sway.frame(i)).unwrap();
+    }
+    assert_eq!(b.sample_count(), sway.len());
+    b.finish().unwrap()
+}
+
+/// The exact branch and leaf positions of sample `i`.
+fn exact(sway: &Sway, options: &AnimatedOptions, i: usize) -> [Vec<Vec3>; 2] {
+    let mut meshes =
+        FrameMeshes::new(sway.topology(), sway.reference_radii(), &options.mesh).unwrap();
+    meshes.set_uv_frame(&sway.frame(0)).unwrap();
+    let (b, l) = meshes.mesh(&sway.frame(i)).unwrap();
+    [b.positions.clone(), l.positions.clone()]
+}
+
+/// What a player computes: the positions of the vertex set used by the
+/// node named `name`, morphed by the animation's weights at sample `k`,
+/// in world space (the root node's transform applied).
+fn played(parsed: &Parsed, name: &str, k: usize) -> Vec<Vec3> {
+    let weights = parsed.keyframe_weights(k);
+    let prim = &parsed.mesh_of(name)["primitives"][0];
+    let mut p = parsed.vec3s(prim["attributes"]["POSITION"].as_u64().unwrap() as usize);
+    for (t, &w) in weights.iter().enumerate() {
+        let d = parsed.vec3s(prim["targets"][t]["POSITION"].as_u64().unwrap() as usize);
+        for (p, d) in p.iter_mut().zip(d) {
+            *p += d * w;
+        }
+    }
+    let root = parsed.json["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == "tree")
+        .unwrap();
+    let scale = root["scale"]
+        .as_array()
+        .map_or(1.0, |s| s[0].as_f64().unwrap() as f32);
+    let translation = root["translation"].as_array().map_or(Vec3::ZERO, |t| {
+        Vec3::from_array([0, 1, 2].map(|a| t[a].as_f64().unwrap() as f32))
+    });
+    p.iter().map(|&v| translation + v * scale).collect()
+}
+
+/// The first node whose name starts with `prefix` and has a mesh.
+fn node_with_mesh<'a>(parsed: &'a Parsed, prefix: &str) -> &'a str {
+    parsed.json["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"].as_str().unwrap().starts_with(prefix) && n.get("mesh").is_some())
+        .unwrap()["name"]
+        .as_str()
+        .unwrap()
+}
+
+fn largest_distance(a: &[Vec3], b: &[Vec3]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn every_sample_plays_within_the_budget_in_every_encoding() {
+    let sway = sway(12);
+    for encoding in [
+        AnimatedEncoding::Float,
+        AnimatedEncoding::Quantized,
+        AnimatedEncoding::Meshopt,
+    ] {
+        let options = AnimatedOptions::default().with_encoding(encoding);
+        let (glb, report) = build(&sway, &options);
+        let parsed = Parsed::new(&glb);
+        assert!(report.within_budget, "{encoding:?}: {report:?}");
+        assert!((1..=MAX_TARGETS).contains(&report.targets), "{report:?}");
+        assert!(report.max_error <= ERROR_BUDGET);
+        let extras = &parsed.json["scenes"][0]["extras"]["treemorph"];
+        assert_eq!(extras["targets"], report.targets);
+        let names = [
+            node_with_mesh(&parsed, "branches"),
+            node_with_mesh(&parsed, "leaves"),
+        ];
+        let mut worst = 0f32;
+        for k in 0..sway.len() {
+            let want = exact(&sway, &options, k);
+            for (m, name) in names.iter().enumerate() {
+                worst = worst.max(largest_distance(&played(&parsed, name, k), &want[m]));
+            }
+        }
+        let measured = worst / report.height;
+        assert!(
+            measured <= report.max_error * 1.01 + 1e-5,
+            "{encoding:?}: played error {measured} above the reported {}",
+            report.max_error
+        );
+        assert!(measured <= ERROR_BUDGET, "{encoding:?}: {measured}");
+    }
+}
+
+#[test]
+fn the_file_is_much_smaller_than_one_target_per_keyframe() {
+    let sway = sway(24);
+    let options = AnimatedOptions::default().with_keyframes(24);
+    let (basis, report) = build(&sway, &options);
+    let mut keyframes = crate::animated::AnimatedGlbBuilder::new(
+        sway.topology(),
+        sway.reference_radii(),
+        sway.bounds(),
+        &options,
+    )
+    .unwrap();
+    for i in 0..sway.len() {
+        keyframes.push(&sway.frame(i)).unwrap();
+    }
+    let keyframes = keyframes.finish().unwrap();
+    assert!(report.targets < 12, "{report:?}");
+    assert!(
+        basis.len() * 2 < keyframes.len(),
+        "basis {} bytes, keyframes {} bytes",
+        basis.len(),
+        keyframes.len()
+    );
+}
+
+/// Node scales at `time` from the animation's STEP samplers (1 when not
+/// animated).
+fn scales_at(parsed: &Parsed, time: f32) -> Vec<f32> {
+    let nodes = parsed.json["nodes"].as_array().unwrap();
+    let mut scales: Vec<f32> = nodes
+        .iter()
+        .map(|n| {
+            n["scale"]
+                .as_array()
+                .map_or(1.0, |s| s[0].as_f64().unwrap() as f32)
+        })
+        .collect();
+    let animation = &parsed.json["animations"][0];
+    for channel in animation["channels"].as_array().unwrap() {
+        if channel["target"]["path"] != "scale" {
+            continue;
+        }
+        let node = channel["target"]["node"].as_u64().unwrap() as usize;
+        let sampler = &animation["samplers"][channel["sampler"].as_u64().unwrap() as usize];
+        assert_eq!(sampler["interpolation"], "STEP");
+        let (times, _) = parsed.floats(sampler["input"].as_u64().unwrap() as usize);
+        let (values, _) = parsed.floats(sampler["output"].as_u64().unwrap() as usize);
+        let key = times.iter().rposition(|&t| t <= time).unwrap_or(0);
+        scales[node] = values[key * 3];
+    }
+    scales
+}
+
+/// Every leaf and bark triangle is drawn by exactly one visible node at
+/// every time, and leaves that change material end in their second one.
+#[test]
+fn the_dissolve_draws_every_triangle_once() {
+    let sway = sway(12);
+    let (glb, _) = build(&sway, &AnimatedOptions::default());
+    let parsed = Parsed::new(&glb);
+    let nodes: &Vec<Value> = parsed.json["nodes"].as_array().unwrap();
+    let swapping = nodes
+        .iter()
+        .filter(|n| n["name"].as_str().unwrap().contains("_from_"))
+        .count();
+    assert!(swapping >= 2, "the sway's leaves change material");
+    assert!(swapping <= MAX_LEAF_GROUPS + BARK_BANDS);
+    let duration = AnimatedOptions::default().duration;
+    for time in [0.0, 0.3 * duration, 0.55 * duration, duration] {
+        let scales = scales_at(&parsed, time);
+        for prefix in ["branches", "leaves"] {
+            let mut drawn: std::collections::HashMap<[u32; 3], usize> = Default::default();
+            for (i, node) in nodes.iter().enumerate() {
+                let name = node["name"].as_str().unwrap();
+                let Some(mesh) = node["mesh"].as_u64() else {
+                    continue;
+                };
+                if !name.starts_with(prefix) || scales[i] == 0.0 {
+                    continue;
+                }
+                for prim in parsed.json["meshes"][mesh as usize]["primitives"]
+                    .as_array()
+                    .unwrap()
+                {
+                    let indices = parsed.indices(prim["indices"].as_u64().unwrap() as usize);
+                    for t in crate::test_support::canonical_triangles(&indices) {
+                        *drawn.entry(t).or_default() += 1;
+                    }
+                }
+            }
+            assert!(!drawn.is_empty());
+            assert!(
+                drawn.values().all(|&c| c == 1),
+                "{prefix} at {time} s: a triangle drawn twice"
+            );
+        }
+    }
+    let scales = scales_at(&parsed, duration);
+    for (i, node) in nodes.iter().enumerate() {
+        let name = node["name"].as_str().unwrap();
+        if name.contains("_until_") {
+            assert_eq!(scales[i], 0.0, "{name} still shown at the end");
+        }
+    }
+}
+
+/// A render's ETag is its bytes, so the same sequence must give the same
+/// file every time, with the parallel passes (Gram blocks, error blocks)
+/// over several blocks.
+#[test]
+fn the_same_sequence_gives_the_same_bytes() {
+    let tree = generate(&GenerateOptions::new(Preset::Maple, 3).with_size(2000)).unwrap();
+    let sway = Sway::new(&tree, 6);
+    let options = AnimatedOptions::default();
+    let first = build(&sway, &options).0;
+    for _ in 0..3 {
+        assert!(build(&sway, &options).0 == first);
+    }
+}
+
+#[test]
+fn a_still_sequence_has_no_targets() {
+    let sway = sway(1);
+    let options = AnimatedOptions::default();
+    let mut b = BasisGlbBuilder::new(
+        sway.topology(),
+        sway.reference_radii(),
+        sway.bounds(),
+        &options,
+    )
+    .unwrap();
+    let mut frame = sway.frame(0);
+    b.push(&frame).unwrap();
+    frame.t = 1.0;
+    b.push(&frame).unwrap();
+    let (glb, report) = b.finish().unwrap();
+    assert_eq!(report.targets, 0);
+    assert_eq!(report.max_error, 0.0);
+    let parsed = Parsed::new(&glb);
+    assert!(
+        parsed.json["meshes"][0]["primitives"][0]
+            .get("targets")
+            .is_none()
+    );
+}
+
+#[test]
+fn misuse_is_refused() {
+    let sway = sway(3);
+    let (topology, radii, bounds) = (sway.topology(), sway.reference_radii(), sway.bounds());
+    let options = AnimatedOptions::default();
+    let mut b = BasisGlbBuilder::new(topology, radii, bounds, &options).unwrap();
+    b.push(&sway.frame(1)).unwrap();
+    assert!(matches!(b.push(&sway.frame(0)), Err(EncodeError::Usage(_))));
+    assert!(matches!(b.finish(), Err(EncodeError::Usage(_))));
+    let quantised = options.clone().with_encoding(AnimatedEncoding::Quantized);
+    assert!(matches!(
+        BasisGlbBuilder::new(topology, radii, Aabb::EMPTY, &quantised),
+        Err(EncodeError::InvalidOptions(_))
+    ));
+    assert!(matches!(
+        BasisGlbBuilder::new(topology, radii, bounds, &options.with_duration(-1.0)),
+        Err(EncodeError::InvalidOptions(_))
+    ));
+}
+
+/// Nodes whose names start with `prefix` and the times (of `times`) at
+/// which each is drawn, every time covered once.
+fn shown_nodes(parsed: &Parsed, prefix: &str, times: &[f32]) -> Vec<(String, Vec<f32>)> {
+    let nodes = parsed.json["nodes"].as_array().unwrap();
+    let mut out: Vec<(String, Vec<f32>)> = Vec::new();
+    for &time in times {
+        let scales = scales_at(parsed, time);
+        let shown = nodes
+            .iter()
+            .enumerate()
+            .find(|(i, n)| {
+                n["name"].as_str().unwrap().starts_with(prefix)
+                    && n.get("mesh").is_some()
+                    && scales[*i] > 0.0
+            })
+            .map(|(_, n)| n["name"].as_str().unwrap().to_string())
+            .unwrap();
+        match out.iter_mut().find(|(name, _)| *name == shown) {
+            Some((_, t)) => t.push(time),
+            None => out.push((shown, vec![time])),
+        }
+    }
+    out
+}
+
+/// Writes basis GLBs (every encoding) with what three.js must make of
+/// them at sample times and between samples, and runs
+/// `tools/render/check-animated.mjs` on each: the exact frames' positions
+/// within the reported error (between samples, the linear blend of the
+/// neighbouring samples). The files and expectations stay in
+/// `target/threejs-check` (`basis-*.glb`, `.json`) for other players'
+/// checks (`tools/blender/check_animated.py`).
+#[test]
+#[ignore = "needs node, chromium and `npm ci --prefix tools/render`"]
+fn threejs_plays_the_animation_as_written_basis() {
+    let sway = sway(9);
+    let duration = 4.0;
+    for encoding in [
+        AnimatedEncoding::Float,
+        AnimatedEncoding::Quantized,
+        AnimatedEncoding::Meshopt,
+    ] {
+        let options = AnimatedOptions::default()
+            .with_encoding(encoding)
+            .with_duration(duration);
+        let (glb, report) = build(&sway, &options);
+        let parsed = Parsed::new(&glb);
+        let samples: Vec<[Vec<Vec3>; 2]> =
+            (0..sway.len()).map(|k| exact(&sway, &options, k)).collect();
+        let tolerance = report.max_error * report.height * 1.01 + 1e-4;
+        let times = [0.0, 0.25, 0.5, 1.3, 2.0, 3.1, 4.0];
+        let step = duration / (sway.len() - 1) as f32;
+        let mut meshes: Vec<Value> = Vec::new();
+        for (m, prefix) in ["branches", "leaves"].iter().enumerate() {
+            let n = samples[0][m].len();
+            let indices: Vec<usize> = (0..200).map(|i| i * n / 200).chain([n - 1]).collect();
+            // A node drawn at each time: a swap node at scale 0 puts its
+            // vertices at the origin, as it should.
+            for (name, times) in shown_nodes(&parsed, prefix, &times) {
+                let targets = parsed.mesh_of(&name)["primitives"][0]["targets"]
+                    .as_array()
+                    .unwrap()
+                    .len();
+                let expected: Vec<Value> = times
+                    .iter()
+                    .map(|&time| {
+                        let x = time / step;
+                        let k = (x.floor() as usize).min(sway.len() - 2);
+                        let a = x - k as f32;
+                        let positions: Vec<[f32; 3]> = indices
+                            .iter()
+                            .map(|&i| samples[k][m][i].lerp(samples[k + 1][m][i], a).to_array())
+                            .collect();
+                        serde_json::json!({ "time": time, "indices": indices, "positions": positions })
+                    })
+                    .collect();
+                meshes.push(serde_json::json!({
+                    "name": name, "prefix": prefix, "vertices": n, "morphTargets": targets, "samples": expected,
+                }));
+            }
+        }
+        let name = format!("basis-{encoding:?}").to_lowercase();
+        let expected = serde_json::json!({ "tolerance": tolerance, "meshes": meshes });
+        crate::test_support::check_with_threejs(&name, &glb, &expected);
+    }
+}

@@ -18,7 +18,9 @@
 //                   "samples": [ { "time": 0.5, "indices": [0, 17],
 //                                  "positions": [[x, y, z], [x, y, z]] } ] } ] }
 //
-// Prints one line per check and exits 1 on any mismatch (2 on bad usage).
+// Prints the load time and an estimate of the GPU memory three.js uses
+// for the file, one line per check, and exits 1 on any mismatch (2 on bad
+// usage). An EXPECTED.json with no meshes only measures.
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -36,8 +38,28 @@ import { MeshoptDecoder } from 'three/addons/libs/meshopt_decoder.module.js';
 window.check = async (url, expected) => {
   const loader = new GLTFLoader();
   loader.setMeshoptDecoder(MeshoptDecoder);
+  const started = performance.now();
   const gltf = await loader.loadAsync(url);
+  const loadMs = performance.now() - started;
   const scene = gltf.scene;
+  // What the GPU holds, estimated as three.js r187 uploads it: every
+  // buffer attribute once (shared attributes are one upload), and per
+  // geometry a float texture of its morph targets with one vec4 per vertex,
+  // target and morphed attribute (position, normal, colour).
+  const attributes = new Set();
+  let morphBytes = 0;
+  const geometries = new Set();
+  scene.traverse((o) => { if (o.isMesh) geometries.add(o.geometry); });
+  for (const g of geometries) {
+    for (const a of Object.values(g.attributes)) attributes.add(a);
+    if (g.index) attributes.add(g.index);
+    const morphed = Object.values(g.morphAttributes).filter((list) => list.length > 0);
+    if (morphed.length) morphBytes += g.attributes.position.count * morphed[0].length * morphed.length * 16;
+  }
+  let attributeBytes = 0;
+  for (const a of attributes) attributeBytes += a.array.byteLength;
+  const gpu = 'loaded in ' + loadMs.toFixed(0) + ' ms, GPU estimate ' + ((attributeBytes + morphBytes) / 1e6).toFixed(1) +
+    ' MB (' + (attributeBytes / 1e6).toFixed(1) + ' MB attributes, ' + (morphBytes / 1e6).toFixed(1) + ' MB morph textures, ' + geometries.size + ' geometries)';
   const clip = gltf.animations[0];
   if (!clip) return { errors: ['the file has no animation'], lines: [] };
   const mixer = new THREE.AnimationMixer(scene);
@@ -48,7 +70,7 @@ window.check = async (url, expected) => {
   action.clampWhenFinished = true;
   action.play();
   const errors = [];
-  const lines = [];
+  const lines = [gpu];
   const v = new THREE.Vector3();
   const d = new THREE.Vector3();
   for (const want of expected.meshes) {

@@ -44,6 +44,7 @@ const page = `<!doctype html><html><head><style>html,body{margin:0;background:#f
 </head><body><script type="module">
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { MeshoptDecoder } from 'three/addons/libs/meshopt_decoder.module.js';
 window.renderGlb = async (url, opts) => {
   const [w, h] = opts.size;
   const cols = Math.max(1, opts.frames || 1);
@@ -53,7 +54,7 @@ window.renderGlb = async (url, opts) => {
   renderer.setScissorTest(true);
   document.body.innerHTML = '';
   document.body.appendChild(renderer.domElement);
-  const gltf = await new GLTFLoader().loadAsync(url);
+  const gltf = await new GLTFLoader().setMeshoptDecoder(MeshoptDecoder).loadAsync(url);
   const scene = new THREE.Scene();
   scene.add(new THREE.HemisphereLight(0xffffff, 0x6b5a3a, 1.6));
   const sun = new THREE.DirectionalLight(0xffffff, 2.2);

@@ -25,10 +25,12 @@
 //! Core glTF cannot blend two textures on one surface, and a blend factor
 //! in a vertex attribute needs a shader of our own. So the change of
 //! material is a **dissolve in a few steps** that every player follows:
-//! the meshes are drawn by several nodes that share all vertex data
-//! (accessors are shared, only index lists differ), and each node's
+//! the meshes are drawn by several nodes, each holding the vertices it
+//! draws (three.js keeps morph data per mesh, so nodes sharing one big
+//! vertex set would each upload all of it), and each swapping node's
 //! `scale` switches between 1 and 0 with STEP interpolation at its swap
-//! time — a node at scale 0 draws nothing.
+//! time — a node at scale 0 draws nothing. The two nodes of a swap share
+//! their vertex accessors.
 //!
 //! - **Leaves** whose two materials differ swap when their blend passes
 //!   their own threshold (a hash of the leaf index, as in
@@ -428,7 +430,6 @@ impl BasisGlbBuilder {
         let encoding = self.options.encoding;
         let mut w = Writer::new(encoding);
         let bark_looks = self.write_materials(&mut w.doc);
-        let vertices = write_vertices(&mut w, &base, &targets);
         let plans = appearance::plan(&appearance::Inputs {
             base: &base.positions[..base.branch_vertices],
             branch_indices: &base.branch_indices,
@@ -441,11 +442,11 @@ impl BasisGlbBuilder {
             bark_blends: &self.bark_blends,
             bark_looks,
         });
-        let nodes = write_nodes(&mut w, &plans, &vertices, &target_names(&targets));
+        let nodes = write_nodes(&mut w, &plans, &base, &targets);
         write_animation(&mut w.doc, &self.times, &targets, &plans, &nodes);
         let mut doc = w.into_doc();
         let mut tree =
-            json!({ "name": "tree", "children": nodes.iter().map(|n| n.0).collect::<Vec<_>>() });
+            json!({ "name": "tree", "children": nodes.iter().map(|n| n.1).collect::<Vec<_>>() });
         if let Some((t, s)) = self.grid {
             tree["translation"] = json!(t.to_array());
             tree["scale"] = json!([s, s, s]);
@@ -707,108 +708,62 @@ fn quantised_target(positions: &[f32], normals: &[f32], s: f32) -> (StoredTarget
     (StoredTarget::Quantised(qp, qn), back, scale)
 }
 
-/// Accessors of one vertex set (branches or leaves).
+/// Accessors of the vertices one node draws.
 #[derive(Clone, Debug, Default)]
 struct VertexSet {
     count: usize,
     position: usize,
     normal: usize,
-    /// TEXCOORD_0 accessors: the first material's, and (leaves) the
-    /// second material's outline.
-    uvs: [usize; 2],
+    /// TEXCOORD_0 accessors, written when first used: the first
+    /// material's, and (leaves) the second material's outline.
+    uvs: [Option<usize>; 2],
     targets: Vec<Value>,
 }
 
-/// The branch and leaf vertex accessors shared by every node.
-struct Vertices {
-    branches: Option<VertexSet>,
-    leaves: Option<VertexSet>,
-}
-
-fn write_vertices(w: &mut Writer, base: &BasePose, targets: &Targets) -> Vertices {
-    let nb = base.branch_vertices;
-    let n = base.positions.len();
-    let branches = (nb > 0 && !base.branch_indices.is_empty()).then(|| {
-        write_vertex_set(
-            w,
-            base,
-            targets,
-            0..nb,
-            [&base.branch_uvs, &base.branch_uvs],
-        )
-    });
-    let leaves = (n > nb && !base.leaf_indices.is_empty()).then(|| {
-        let [a, b] = &base.leaf_uvs;
-        write_vertex_set(w, base, targets, nb..n, [a, b])
-    });
-    Vertices { branches, leaves }
-}
-
+/// The vertices of the first frame's meshes that a node draws: `indices`
+/// into `base` (branch vertices first, then leaf vertices).
 fn write_vertex_set(
     w: &mut Writer,
     base: &BasePose,
     targets: &Targets,
-    range: std::ops::Range<usize>,
-    uvs: [&Vec<Vec2>; 2],
+    indices: &[usize],
 ) -> VertexSet {
-    let count = range.len();
+    let count = indices.len();
     let quantised = w.encoding != AnimatedEncoding::Float;
     let (position, normal) = if quantised {
-        let q = &base.q_positions[range.clone()];
-        let (lo, hi) = i16_bounds(q);
-        let p = meshopt_if(w.encoding, i16x4_bytes(q), 8);
-        let n = meshopt_if(w.encoding, i8x4_bytes(&base.q_normals[range.clone()]), 4);
+        let q = pick(&base.q_positions, indices);
+        let bounds = i16_bounds(&q);
+        let p = meshopt_if(w.encoding, i16x4_bytes(&q), 8);
+        let n = meshopt_if(w.encoding, i8x4_bytes(&pick(&base.q_normals, indices)), 4);
         (
-            w.attribute(count, p, Attr::Vec3I16, Some((lo, hi))),
+            w.attribute(count, p, Attr::Vec3I16, Some(bounds)),
             w.attribute(count, n, Attr::Vec3I8, None),
         )
     } else {
-        let p = &base.positions[range.clone()];
-        let b = crate::mesh::bounds_of(p);
-        let bounds = (
-            b.min.to_array().map(f64::from),
-            b.max.to_array().map(f64::from),
-        );
+        let p = pick(&base.positions, indices);
+        let n = pick(&base.normals, indices);
         (
-            w.attribute(count, vec3_bytes(p), Attr::Vec3F32, Some(bounds)),
-            w.attribute(
-                count,
-                vec3_bytes(&base.normals[range.clone()]),
-                Attr::Vec3F32,
-                None,
-            ),
+            w.attribute(count, vec3_bytes(&p), Attr::Vec3F32, Some(f32_bounds(&p))),
+            w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
         )
     };
-    let mut uv_accessors = [0; 2];
-    for (i, uv) in uvs.iter().enumerate() {
-        uv_accessors[i] = if i == 1 && std::ptr::eq(uvs[0], uvs[1]) {
-            uv_accessors[0]
-        } else {
-            uv_attribute(w, uv)
-        };
-    }
     let targets = targets
         .stored
         .iter()
         .map(|t| {
             let (pa, na) = match t {
                 StoredTarget::Float(p, n) => {
-                    let (p, n) = (&p[range.clone()], &n[range.clone()]);
-                    let b = crate::mesh::bounds_of(p);
-                    let bounds = (
-                        b.min.to_array().map(f64::from),
-                        b.max.to_array().map(f64::from),
-                    );
+                    let (p, n) = (pick(p, indices), pick(n, indices));
                     (
-                        w.attribute(count, vec3_bytes(p), Attr::Vec3F32, Some(bounds)),
-                        w.attribute(count, vec3_bytes(n), Attr::Vec3F32, None),
+                        w.attribute(count, vec3_bytes(&p), Attr::Vec3F32, Some(f32_bounds(&p))),
+                        w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
                     )
                 }
                 StoredTarget::Quantised(p, n) => {
-                    let (p, n) = (&p[range.clone()], &n[range.clone()]);
-                    let bounds = i16_bounds(p);
-                    let pb = meshopt_if(w.encoding, i16x4_bytes(p), 8);
-                    let nb = meshopt_if(w.encoding, i8x4_bytes(n), 4);
+                    let (p, n) = (pick(p, indices), pick(n, indices));
+                    let bounds = i16_bounds(&p);
+                    let pb = meshopt_if(w.encoding, i16x4_bytes(&p), 8);
+                    let nb = meshopt_if(w.encoding, i8x4_bytes(&n), 4);
                     (
                         w.attribute(count, pb, Attr::Vec3I16, Some(bounds)),
                         w.attribute(count, nb, Attr::Vec3I8, None),
@@ -822,9 +777,26 @@ fn write_vertex_set(
         count,
         position,
         normal,
-        uvs: uv_accessors,
+        uvs: [None; 2],
         targets,
     }
+}
+
+/// `values` at `indices`.
+fn pick<T: Copy>(values: &[T], indices: &[usize]) -> Vec<T> {
+    indices.iter().map(|&i| values[i]).collect()
+}
+
+/// A float POSITION accessor's `min` and `max`.
+fn f32_bounds(points: &[Vec3]) -> ([f64; 3], [f64; 3]) {
+    let b = crate::mesh::bounds_of(points);
+    if b.is_empty() {
+        return ([0.0; 3], [0.0; 3]);
+    }
+    (
+        b.min.to_array().map(f64::from),
+        b.max.to_array().map(f64::from),
+    )
 }
 
 /// A texture coordinate accessor: normalised `u16` in the quantised
@@ -873,63 +845,103 @@ fn target_names(targets: &Targets) -> Vec<String> {
         .collect()
 }
 
-/// Writes a node (with its mesh) per plan; returns each node's index and
-/// whether it has a mesh.
+/// Writes a node per plan that draws anything; returns each one's plan
+/// and node index.
+///
+/// Each primitive has vertex accessors of its own, holding only the
+/// vertices it draws: three.js makes a geometry per primitive and keeps
+/// morph data per geometry, so primitives sharing one big vertex set would
+/// each upload all of its targets. The two sides of a swap draw the same
+/// vertices and share their accessors (their texture coordinates differ).
 fn write_nodes(
     w: &mut Writer,
     plans: &[NodePlan],
-    vertices: &Vertices,
-    target_names: &[String],
-) -> Vec<(usize, bool)> {
-    let target_count = target_names.len();
-    plans
-        .iter()
-        .map(|plan| {
-            let set = if plan.leaves {
-                vertices.leaves.as_ref()
-            } else {
-                vertices.branches.as_ref()
-            };
-            let mut node = json!({ "name": plan.name });
-            let mut has_mesh = false;
-            if let Some(set) = set {
-                let prims: Vec<Value> = plan
-                    .primitives
-                    .iter()
-                    .filter(|(_, indices)| !indices.is_empty())
-                    .map(|(&(material, uv), indices)| {
-                        let accessor =
-                            index_accessor(&mut w.doc, &mut w.fallback_len, indices, set.count, w.encoding);
-                        let mut p = json!({
-                            "attributes": { "POSITION": set.position, "NORMAL": set.normal, "TEXCOORD_0": set.uvs[uv] },
-                            "indices": accessor,
-                            "material": material,
-                            "mode": crate::gl::TRIANGLES,
-                        });
-                        if target_count > 0 {
-                            p["targets"] = json!(set.targets);
-                        }
-                        p
-                    })
-                    .collect();
-                if !prims.is_empty() {
-                    let mut mesh = json!({ "name": plan.name, "primitives": prims });
-                    if target_count > 0 {
-                        mesh["weights"] = json!(vec![0.0; target_count]);
-                        mesh["extras"] = json!({ "targetNames": target_names });
-                    }
-                    w.doc.meshes.push(mesh);
-                    node["mesh"] = json!(w.doc.meshes.len() - 1);
-                    has_mesh = true;
-                }
-            }
-            if matches!(plan.show, Show::From(_)) {
-                node["scale"] = json!([0.0, 0.0, 0.0]);
-            }
-            w.doc.nodes.push(node);
-            (w.doc.nodes.len() - 1, has_mesh)
-        })
-        .collect()
+    base: &BasePose,
+    targets: &Targets,
+) -> Vec<(usize, usize)> {
+    let names = target_names(targets);
+    let mut sets: std::collections::HashMap<Vec<usize>, VertexSet> = Default::default();
+    let mut nodes = Vec::new();
+    for (p, plan) in plans.iter().enumerate() {
+        let prims: Vec<Value> = plan
+            .primitives
+            .iter()
+            .filter(|(_, indices)| !indices.is_empty())
+            .map(|(&(material, uv, _), indices)| {
+                let mut prim =
+                    write_primitive(w, &mut sets, base, targets, plan.leaves, uv, indices);
+                prim["material"] = json!(material);
+                prim
+            })
+            .collect();
+        if prims.is_empty() {
+            continue;
+        }
+        let mut mesh = json!({ "name": plan.name, "primitives": prims });
+        if !names.is_empty() {
+            mesh["weights"] = json!(vec![0.0; names.len()]);
+            mesh["extras"] = json!({ "targetNames": names });
+        }
+        w.doc.meshes.push(mesh);
+        let mut node = json!({ "name": plan.name, "mesh": w.doc.meshes.len() - 1 });
+        if matches!(plan.show, Show::From(_)) {
+            node["scale"] = json!([0.0, 0.0, 0.0]);
+        }
+        w.doc.nodes.push(node);
+        nodes.push((p, w.doc.nodes.len() - 1));
+    }
+    nodes
+}
+
+/// A primitive drawing `indices` (into the branch or leaf vertices) with
+/// texture coordinate set `uv`, over the vertex set of exactly the
+/// vertices it uses (written on first use, then shared), with the morph
+/// targets when there are any.
+fn write_primitive(
+    w: &mut Writer,
+    sets: &mut std::collections::HashMap<Vec<usize>, VertexSet>,
+    base: &BasePose,
+    targets: &Targets,
+    leaves: bool,
+    uv: usize,
+    indices: &[u32],
+) -> Value {
+    let offset = if leaves { base.branch_vertices } else { 0 };
+    let local: std::collections::BTreeSet<u32> = indices.iter().copied().collect();
+    let global: Vec<usize> = local.iter().map(|&i| offset + i as usize).collect();
+    let mut remap = vec![u32::MAX; local.last().map_or(0, |&l| l as usize + 1)];
+    for (new, &old) in local.iter().enumerate() {
+        remap[old as usize] = new as u32;
+    }
+    let set = sets
+        .entry(global.clone())
+        .or_insert_with(|| write_vertex_set(w, base, targets, &global));
+    let uv_accessor = *set.uvs[uv].get_or_insert_with(|| {
+        let all: &[Vec2] = if leaves {
+            &base.leaf_uvs[uv]
+        } else {
+            &base.branch_uvs
+        };
+        let mine: Vec<Vec2> = local.iter().map(|&i| all[i as usize]).collect();
+        uv_attribute(w, &mine)
+    });
+    let local_indices: Vec<u32> = indices.iter().map(|&i| remap[i as usize]).collect();
+    let accessor = index_accessor(
+        &mut w.doc,
+        &mut w.fallback_len,
+        &local_indices,
+        set.count,
+        w.encoding,
+    );
+    let mut prim = json!({
+        "attributes": { "POSITION": set.position, "NORMAL": set.normal, "TEXCOORD_0": uv_accessor },
+        "indices": accessor,
+        "mode": crate::gl::TRIANGLES,
+    });
+    if !set.targets.is_empty() {
+        prim["targets"] = json!(set.targets);
+    }
+    prim
 }
 
 /// The animation: the weights of every mesh node (one LINEAR sampler
@@ -939,7 +951,7 @@ fn write_animation(
     times: &[f32],
     targets: &Targets,
     plans: &[NodePlan],
-    nodes: &[(usize, bool)],
+    nodes: &[(usize, usize)],
 ) {
     let mut samplers = Vec::new();
     let mut channels = Vec::new();
@@ -950,24 +962,18 @@ fn write_animation(
             "bufferView": view, "componentType": FLOAT, "count": targets.weights.len(), "type": "SCALAR",
         }));
         samplers.push(json!({ "input": input, "output": output, "interpolation": "LINEAR" }));
-        for &(node, has_mesh) in nodes {
-            if has_mesh {
-                channels
-                    .push(json!({ "sampler": 0, "target": { "node": node, "path": "weights" } }));
-            }
+        for &(_, node) in nodes {
+            channels.push(json!({ "sampler": 0, "target": { "node": node, "path": "weights" } }));
         }
     }
     let mut scales: Option<[usize; 2]> = None;
     let mut inputs = std::collections::HashMap::new();
-    for (plan, &(node, has_mesh)) in plans.iter().zip(nodes) {
-        let (time, show) = match plan.show {
+    for &(p, node) in nodes {
+        let (time, show) = match plans[p].show {
             Show::Always => continue,
             Show::Until(t) => (t, false),
             Show::From(t) => (t, true),
         };
-        if !has_mesh {
-            continue;
-        }
         let [hide, reveal] = *scales.get_or_insert_with(|| {
             let mut v = |a: f32, b: f32| -> usize {
                 let view = doc.view(Data::Owned(f32_bytes(&[a, a, a, b, b, b])), None, None);

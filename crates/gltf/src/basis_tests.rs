@@ -35,12 +35,12 @@ fn exact(sway: &Sway, options: &AnimatedOptions, i: usize) -> [Vec<Vec3>; 2] {
     [b.positions.clone(), l.positions.clone()]
 }
 
-/// What a player computes: the positions of the vertex set used by the
-/// node named `name`, morphed by the animation's weights at sample `k`,
+/// What a player computes: the positions of the vertex set of primitive
+/// `primitive` of the node named `name`, morphed by the animation's weights at sample `k`,
 /// in world space (the root node's transform applied).
-fn played(parsed: &Parsed, name: &str, k: usize) -> Vec<Vec3> {
+fn played(parsed: &Parsed, name: &str, primitive: usize, k: usize) -> Vec<Vec3> {
     let weights = parsed.keyframe_weights(k);
-    let prim = &parsed.mesh_of(name)["primitives"][0];
+    let prim = &parsed.mesh_of(name)["primitives"][primitive];
     let mut p = parsed.vec3s(prim["attributes"]["POSITION"].as_u64().unwrap() as usize);
     for (t, &w) in weights.iter().enumerate() {
         let d = parsed.vec3s(prim["targets"][t]["POSITION"].as_u64().unwrap() as usize);
@@ -63,18 +63,6 @@ fn played(parsed: &Parsed, name: &str, k: usize) -> Vec<Vec3> {
     p.iter().map(|&v| translation + v * scale).collect()
 }
 
-/// The first node whose name starts with `prefix` and has a mesh.
-fn node_with_mesh<'a>(parsed: &'a Parsed, prefix: &str) -> &'a str {
-    parsed.json["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["name"].as_str().unwrap().starts_with(prefix) && n.get("mesh").is_some())
-        .unwrap()["name"]
-        .as_str()
-        .unwrap()
-}
-
 fn largest_distance(a: &[Vec3], b: &[Vec3]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter()
@@ -83,15 +71,79 @@ fn largest_distance(a: &[Vec3], b: &[Vec3]) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// Every primitive of every node: the node's name, whether it draws
+/// leaves (1) or bark (0), and the primitive's index.
+fn primitives(parsed: &Parsed) -> Vec<(String, usize, usize)> {
+    let mut out = Vec::new();
+    for n in parsed.json["nodes"].as_array().unwrap() {
+        let Some(mesh) = n["mesh"].as_u64() else {
+            continue;
+        };
+        let name = n["name"].as_str().unwrap().to_string();
+        let m = usize::from(name.starts_with("leaves"));
+        let count = parsed.json["meshes"][mesh as usize]["primitives"]
+            .as_array()
+            .unwrap()
+            .len();
+        out.extend((0..count).map(|p| (name.clone(), m, p)));
+    }
+    out
+}
+
+/// Which vertex of the exact meshes each vertex of primitive `primitive`
+/// of node `name` is. A primitive holds only the vertices it draws; in the float file its base mesh
+/// is the first frame's positions, and vertices that coincide there
+/// (leaves yet to grow) part by the last sample.
+fn vertex_map(
+    float: &Parsed,
+    (name, m, primitive): (&str, usize, usize),
+    exact: &[[Vec<Vec3>; 2]],
+) -> Vec<usize> {
+    let last = exact.len() - 1;
+    let key = |p: &Vec3| p.to_array().map(|c| (f64::from(c) * 1e5).round() as i64);
+    let mut at: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
+    for (i, p) in exact[0][m].iter().enumerate() {
+        at.entry(key(p)).or_default().push(i);
+    }
+    let prim = &float.mesh_of(name)["primitives"][primitive];
+    let first = float.vec3s(prim["attributes"]["POSITION"].as_u64().unwrap() as usize);
+    let end = played(float, name, primitive, last);
+    first
+        .iter()
+        .zip(&end)
+        .map(|(p, e)| {
+            let candidates = &at[&key(p)];
+            *candidates
+                .iter()
+                .min_by(|&&a, &&b| {
+                    let (da, db) = (
+                        exact[last][m][a].distance(*e),
+                        exact[last][m][b].distance(*e),
+                    );
+                    da.total_cmp(&db)
+                })
+                .unwrap()
+        })
+        .collect()
+}
+
 #[test]
 fn every_sample_plays_within_the_budget_in_every_encoding() {
     let sway = sway(12);
+    let base = AnimatedOptions::default();
+    let samples: Vec<[Vec<Vec3>; 2]> = (0..sway.len()).map(|k| exact(&sway, &base, k)).collect();
+    let float = Parsed::new(&build(&sway, &base).0);
+    let prims = primitives(&float);
+    let maps: Vec<Vec<usize>> = prims
+        .iter()
+        .map(|(name, m, p)| vertex_map(&float, (name, *m, *p), &samples))
+        .collect();
     for encoding in [
         AnimatedEncoding::Float,
         AnimatedEncoding::Quantized,
         AnimatedEncoding::Meshopt,
     ] {
-        let options = AnimatedOptions::default().with_encoding(encoding);
+        let options = base.clone().with_encoding(encoding);
         let (glb, report) = build(&sway, &options);
         let parsed = Parsed::new(&glb);
         assert!(report.within_budget, "{encoding:?}: {report:?}");
@@ -99,15 +151,12 @@ fn every_sample_plays_within_the_budget_in_every_encoding() {
         assert!(report.max_error <= ERROR_BUDGET);
         let extras = &parsed.json["scenes"][0]["extras"]["treemorph"];
         assert_eq!(extras["targets"], report.targets);
-        let names = [
-            node_with_mesh(&parsed, "branches"),
-            node_with_mesh(&parsed, "leaves"),
-        ];
+        assert_eq!(primitives(&parsed), prims);
         let mut worst = 0f32;
-        for k in 0..sway.len() {
-            let want = exact(&sway, &options, k);
-            for (m, name) in names.iter().enumerate() {
-                worst = worst.max(largest_distance(&played(&parsed, name, k), &want[m]));
+        for ((name, m, p), map) in prims.iter().zip(&maps) {
+            for (k, sample) in samples.iter().enumerate() {
+                let want: Vec<Vec3> = map.iter().map(|&i| sample[*m][i]).collect();
+                worst = worst.max(largest_distance(&played(&parsed, name, *p, k), &want));
             }
         }
         let measured = worst / report.height;
@@ -178,8 +227,14 @@ fn scales_at(parsed: &Parsed, time: f32) -> Vec<f32> {
 #[test]
 fn the_dissolve_draws_every_triangle_once() {
     let sway = sway(12);
-    let (glb, _) = build(&sway, &AnimatedOptions::default());
+    let options = AnimatedOptions::default();
+    let (glb, _) = build(&sway, &options);
     let parsed = Parsed::new(&glb);
+    let samples: Vec<[Vec<Vec3>; 2]> = (0..sway.len()).map(|k| exact(&sway, &options, k)).collect();
+    let mut meshes =
+        FrameMeshes::new(sway.topology(), sway.reference_radii(), &options.mesh).unwrap();
+    let (b, l) = meshes.mesh(&sway.frame(0)).unwrap();
+    let triangles = [b.triangle_count(), l.triangle_count()];
     let nodes: &Vec<Value> = parsed.json["nodes"].as_array().unwrap();
     let swapping = nodes
         .iter()
@@ -187,11 +242,11 @@ fn the_dissolve_draws_every_triangle_once() {
         .count();
     assert!(swapping >= 2, "the sway's leaves change material");
     assert!(swapping <= MAX_LEAF_GROUPS + BARK_BANDS);
-    let duration = AnimatedOptions::default().duration;
+    let duration = options.duration;
     for time in [0.0, 0.3 * duration, 0.55 * duration, duration] {
         let scales = scales_at(&parsed, time);
-        for prefix in ["branches", "leaves"] {
-            let mut drawn: std::collections::HashMap<[u32; 3], usize> = Default::default();
+        for (m, prefix) in ["branches", "leaves"].iter().enumerate() {
+            let mut drawn: std::collections::HashMap<[usize; 3], usize> = Default::default();
             for (i, node) in nodes.iter().enumerate() {
                 let name = node["name"].as_str().unwrap();
                 let Some(mesh) = node["mesh"].as_u64() else {
@@ -200,17 +255,23 @@ fn the_dissolve_draws_every_triangle_once() {
                 if !name.starts_with(prefix) || scales[i] == 0.0 {
                     continue;
                 }
-                for prim in parsed.json["meshes"][mesh as usize]["primitives"]
+                for (p, prim) in parsed.json["meshes"][mesh as usize]["primitives"]
                     .as_array()
                     .unwrap()
+                    .iter()
+                    .enumerate()
                 {
+                    let map = vertex_map(&parsed, (name, m, p), &samples);
                     let indices = parsed.indices(prim["indices"].as_u64().unwrap() as usize);
                     for t in crate::test_support::canonical_triangles(&indices) {
-                        *drawn.entry(t).or_default() += 1;
+                        let mut key = t.map(|v| map[v as usize]);
+                        key.sort_unstable();
+                        *drawn.entry(key).or_default() += 1;
                     }
                 }
             }
-            assert!(!drawn.is_empty());
+            let total: usize = drawn.values().sum();
+            assert_eq!(total, triangles[m], "{prefix} at {time} s");
             assert!(
                 drawn.values().all(|&c| c == 1),
                 "{prefix} at {time} s: a triangle drawn twice"
@@ -323,28 +384,29 @@ fn shown_nodes(parsed: &Parsed, prefix: &str, times: &[f32]) -> Vec<(String, Vec
 fn threejs_plays_the_animation_as_written_basis() {
     let sway = sway(9);
     let duration = 4.0;
+    let base = AnimatedOptions::default().with_duration(duration);
+    let samples: Vec<[Vec<Vec3>; 2]> = (0..sway.len()).map(|k| exact(&sway, &base, k)).collect();
+    let float = Parsed::new(&build(&sway, &base).0);
     for encoding in [
         AnimatedEncoding::Float,
         AnimatedEncoding::Quantized,
         AnimatedEncoding::Meshopt,
     ] {
-        let options = AnimatedOptions::default()
-            .with_encoding(encoding)
-            .with_duration(duration);
-        let (glb, report) = build(&sway, &options);
+        let (glb, report) = build(&sway, &base.clone().with_encoding(encoding));
         let parsed = Parsed::new(&glb);
-        let samples: Vec<[Vec<Vec3>; 2]> =
-            (0..sway.len()).map(|k| exact(&sway, &options, k)).collect();
         let tolerance = report.max_error * report.height * 1.01 + 1e-4;
         let times = [0.0, 0.25, 0.5, 1.3, 2.0, 3.1, 4.0];
         let step = duration / (sway.len() - 1) as f32;
         let mut meshes: Vec<Value> = Vec::new();
         for (m, prefix) in ["branches", "leaves"].iter().enumerate() {
-            let n = samples[0][m].len();
-            let indices: Vec<usize> = (0..200).map(|i| i * n / 200).chain([n - 1]).collect();
             // A node drawn at each time: a swap node at scale 0 puts its
             // vertices at the origin, as it should.
             for (name, times) in shown_nodes(&parsed, prefix, &times) {
+                // three.js makes a mesh per primitive; the checker reads
+                // the node's first.
+                let map = vertex_map(&float, (&name, m, 0), &samples);
+                let n = map.len();
+                let indices: Vec<usize> = (0..200).map(|i| i * n / 200).chain([n - 1]).collect();
                 let targets = parsed.mesh_of(&name)["primitives"][0]["targets"]
                     .as_array()
                     .unwrap()
@@ -357,7 +419,7 @@ fn threejs_plays_the_animation_as_written_basis() {
                         let a = x - k as f32;
                         let positions: Vec<[f32; 3]> = indices
                             .iter()
-                            .map(|&i| samples[k][m][i].lerp(samples[k + 1][m][i], a).to_array())
+                            .map(|&i| samples[k][m][map[i]].lerp(samples[k + 1][m][map[i]], a).to_array())
                             .collect();
                         serde_json::json!({ "time": time, "indices": indices, "positions": positions })
                     })

@@ -19,14 +19,17 @@ pub(crate) enum Show {
     From(f32),
 }
 
-/// One node: its triangles by (glTF material, texture coordinate set).
+/// One node: its triangles by (glTF material, texture coordinate set,
+/// the material on the other side of the swap). The third part splits
+/// both sides of a swap alike, so they draw the same vertex sets and
+/// share them.
 #[derive(Clone, Debug)]
 pub(crate) struct NodePlan {
     pub(crate) name: String,
     /// Leaf triangles (else bark).
     pub(crate) leaves: bool,
     pub(crate) show: Show,
-    pub(crate) primitives: BTreeMap<(usize, usize), Vec<u32>>,
+    pub(crate) primitives: BTreeMap<(usize, usize, usize), Vec<u32>>,
 }
 
 /// What the plan is made from.
@@ -173,7 +176,11 @@ fn nodes(
     let mut swapping: BTreeMap<u32, [NodePlan; 2]> = BTreeMap::new();
     for (slot, tris) in by_slot {
         match slot {
-            Slot::Static(m, uv) => always.primitives.entry((m, uv)).or_default().extend(tris),
+            Slot::Static(m, uv) => always
+                .primitives
+                .entry((m, uv, m))
+                .or_default()
+                .extend(tris),
             Slot::Swap(s, before, after) => {
                 let t = times[s as usize];
                 let pair = swapping.entry(s).or_insert_with(|| {
@@ -187,12 +194,17 @@ fn nodes(
                     };
                     [node("until", Show::Until(t)), node("from", Show::From(t))]
                 });
+                let (b, a) = (before.0, after.0);
                 pair[0]
                     .primitives
-                    .entry(before)
+                    .entry((b, before.1, a))
                     .or_default()
                     .extend_from_slice(&tris);
-                pair[1].primitives.entry(after).or_default().extend(tris);
+                pair[1]
+                    .primitives
+                    .entry((a, after.1, b))
+                    .or_default()
+                    .extend(tris);
             }
         }
     }

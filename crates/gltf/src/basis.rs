@@ -13,7 +13,9 @@
 //! - The **target count `K`** is the smallest that keeps every vertex of
 //!   every sample within [`ERROR_BUDGET`] of the tree's height (the
 //!   largest vertical extent of any sample's meshes) of its exact
-//!   position, measured on the targets as stored. When
+//!   position, measured on the targets as stored (float targets are the
+//!   basis offset and scaled, equal to it but for rounding; quantised
+//!   ones are measured as a player reads them back). When
 //!   [`MAX_TARGETS`] are not enough, all of them are used and the
 //!   [`BasisReport`] says so with the error reached. The figures are also
 //!   in the scene's `extras.treemorph`.
@@ -291,22 +293,22 @@ impl BasisGlbBuilder {
                 "at most 4,096 frames can be sampled into one animation".into(),
             ));
         }
-        let (branches, leaves) = self.meshes.mesh(frame)?;
-        let positions = [&branches.positions[..], &leaves.positions[..]].concat();
-        let normals = [&branches.normals[..], &leaves.normals[..]].concat();
+        self.meshes.mesh(frame)?;
         if self.base.is_none() {
-            let base = self.base_pose(&positions, &normals)?;
+            let base = self.base_pose()?;
             self.base = Some(base);
         }
-        self.record(frame, time, &positions, &normals)
+        self.record(frame, time)
     }
 
     /// The first frame as stored, with the meshes' UVs and indices.
-    fn base_pose(&self, positions: &[Vec3], normals: &[Vec3]) -> Result<BasePose, EncodeError> {
+    fn base_pose(&self) -> Result<BasePose, EncodeError> {
         let branches = self.meshes.branches().buffers();
         let leaves = self.meshes.leaves().buffers();
+        let positions = [&branches.positions[..], &leaves.positions[..]].concat();
+        let normals = [&branches.normals[..], &leaves.normals[..]].concat();
         let (positions, normals, q_positions, q_normals) = match self.grid {
-            None => (positions.to_vec(), normals.to_vec(), Vec::new(), Vec::new()),
+            None => (positions, normals, Vec::new(), Vec::new()),
             Some((t, s)) => {
                 let q: Vec<[i16; 3]> = positions
                     .iter()
@@ -357,28 +359,35 @@ impl BasisGlbBuilder {
         out
     }
 
-    /// Records a sample: its displacements from the base, its time, bark
-    /// blend, leaf swaps and height.
-    fn record(
-        &mut self,
-        frame: &Frame,
-        time: f32,
-        positions: &[Vec3],
-        normals: &[Vec3],
-    ) -> Result<(), EncodeError> {
+    /// Records the sample just meshed: its displacements from the base,
+    /// its time, bark blend, leaf swaps and height.
+    fn record(&mut self, frame: &Frame, time: f32) -> Result<(), EncodeError> {
         let Some(base) = &self.base else {
             return Err(EncodeError::Internal("no base pose".into()));
         };
-        let (lo, hi) = positions
+        let branches = self.meshes.branches().buffers();
+        let leaves = self.meshes.leaves().buffers();
+        let (lo, hi) = branches
+            .positions
             .iter()
+            .chain(&leaves.positions)
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| {
                 (lo.min(p.y), hi.max(p.y))
             });
         if hi >= lo {
             self.heights = self.heights.max(hi - lo);
         }
-        extend_differences(&mut self.displacements, positions, &base.positions);
-        extend_differences(&mut self.normal_changes, normals, &base.normals);
+        let (displacements, normal_changes) = (&mut self.displacements, &mut self.normal_changes);
+        rayon::join(
+            || {
+                let values = [&branches.positions[..], &leaves.positions[..]];
+                extend_differences(displacements, values, &base.positions);
+            },
+            || {
+                let values = [&branches.normals[..], &leaves.normals[..]];
+                extend_differences(normal_changes, values, &base.normals);
+            },
+        );
         let sample = self.times.len() as u32;
         for ((slot, &leaf), &h) in self
             .swaps
@@ -476,26 +485,36 @@ impl BasisGlbBuilder {
     /// budget, in the file's encoding, and the error of what is written.
     fn fit(&mut self) -> (Targets, BasisReport) {
         let principal = motion::principal(&self.displacements, &self.normal_changes, MAX_TARGETS);
-        let errors = motion::max_errors(
+        let height = self.heights.max(1e-6);
+        let budget = ERROR_BUDGET * height;
+        let (k, error) = motion::fewest_within(
             &self.displacements,
             &principal.positions,
             &principal.weights,
             principal.count,
+            budget,
         );
-        let height = self.heights.max(1e-6);
-        let budget = ERROR_BUDGET * height;
-        let k = errors
-            .iter()
-            .position(|&e| e <= budget)
-            .unwrap_or(principal.count);
         let targets = Targets::encode(&principal, k, self.grid);
-        let written = motion::max_errors(
-            &self.displacements,
-            &targets.read_back,
-            &targets.weights_read_back,
-            targets.stored.len(),
-        );
-        let error = written.last().copied().unwrap_or(0.0);
+        // Float targets are the basis itself, offset and scaled (rounding
+        // apart); quantised ones are measured again as a player reads
+        // them back.
+        let error = if self.grid.is_some() {
+            let count = targets.stored.len();
+            let all = motion::Pass {
+                count,
+                upto: count,
+                every: 1,
+            };
+            let written = motion::max_errors(
+                &self.displacements,
+                &targets.read_back,
+                &targets.weights_read_back,
+                all,
+            );
+            written.last().copied().unwrap_or(0.0)
+        } else {
+            error
+        };
         // Free the samples before the document is written.
         self.displacements = Columns::default();
         self.normal_changes = Columns::default();
@@ -535,12 +554,16 @@ impl BasisGlbBuilder {
     }
 }
 
-/// Appends `values − base` as one planar column.
-fn extend_differences(columns: &mut Columns, values: &[Vec3], base: &[Vec3]) {
+/// Appends `values − base` as one planar column (`values` in pieces:
+/// branch then leaf vertices).
+fn extend_differences(columns: &mut Columns, values: [&[Vec3]; 2], base: &[Vec3]) {
+    let (first, second) = base.split_at(values[0].len());
     for axis in 0..3 {
-        columns
-            .data
-            .extend(values.iter().zip(base).map(|(v, b)| v[axis] - b[axis]));
+        for (piece, base) in [(values[0], first), (values[1], second)] {
+            columns
+                .data
+                .extend(piece.iter().zip(base).map(|(v, b)| v[axis] - b[axis]));
+        }
     }
 }
 

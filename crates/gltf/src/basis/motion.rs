@@ -145,40 +145,99 @@ fn largest_eigen(gram: &Mat<f64>, max: usize) -> (Vec<f64>, Mat<f64>) {
     (picked.iter().map(|&i| values[i].sqrt()).collect(), v)
 }
 
-/// `a · p` as columns.
+/// `a · p` as columns, row blocks multiplied in parallel.
 fn multiply(a: &Columns, p: MatRef<'_, f32>) -> Columns {
-    let out = a.matrix() * p;
-    let mut c = Columns::new(a.rows, p.ncols());
+    let m = a.matrix();
+    let rows = a.rows;
+    let block = (3 * BLOCK_VERTICES * 16).max(1);
+    let blocks: Vec<usize> = (0..rows.div_ceil(block)).collect();
+    let parts: Vec<Mat<f32>> = blocks
+        .par_iter()
+        .map(|&b| {
+            let start = b * block;
+            m.subrows(start, block.min(rows - start)) * p
+        })
+        .collect();
+    let mut c = Columns::new(rows, p.ncols());
     for k in 0..p.ncols() {
-        c.data.extend((0..a.rows).map(|i| out[(i, k)]));
+        for part in &parts {
+            c.data.extend(part.col(k).iter().copied());
+        }
     }
     c
 }
 
-/// For `K = 0 … count`, the largest distance between a vertex of a frame
+/// Which error passes to run: the first `upto` targets of `count` (the
+/// weights' stride), over every `every`-th block of vertices.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Pass {
+    pub(crate) count: usize,
+    pub(crate) upto: usize,
+    pub(crate) every: usize,
+}
+
+/// For `K = 0 … upto`, the largest distance between a vertex of a frame
 /// of `d` and its reconstruction from the first `K` columns of `targets`
-/// with `weights` (`weights[j · count + k]`).
-pub(crate) fn max_errors(
-    d: &Columns,
-    targets: &Columns,
-    weights: &[f32],
-    count: usize,
-) -> Vec<f32> {
+/// with `weights` (`weights[j · count + k]`). Over a sample of the
+/// blocks (`every > 1`) the figures are lower bounds.
+pub(crate) fn max_errors(d: &Columns, targets: &Columns, weights: &[f32], pass: Pass) -> Vec<f32> {
     let vertices = d.rows / 3;
     let frames = d.count();
-    let blocks: Vec<usize> = (0..vertices.div_ceil(BLOCK_VERTICES)).collect();
+    let blocks: Vec<usize> = (0..vertices.div_ceil(BLOCK_VERTICES))
+        .step_by(pass.every.max(1))
+        .collect();
     let worst = blocks
         .par_iter()
         .map(|&b| {
             let start = b * BLOCK_VERTICES;
             let range = start..(start + BLOCK_VERTICES).min(vertices);
-            block_errors(d, targets, weights, count, range, frames)
+            block_errors(d, targets, weights, pass, range, frames)
         })
         .reduce(
-            || vec![0f32; count + 1],
+            || vec![0f32; pass.upto + 1],
             |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
         );
     worst.into_iter().map(f32::sqrt).collect()
+}
+
+/// The fewest of the `count` targets whose largest error is within
+/// `budget` (all of them when none is), and that error: first a pass over
+/// an eighth of the vertices, whose lower bounds say where to start, then
+/// full passes that stop two targets past that guess unless it was short.
+pub(crate) fn fewest_within(
+    d: &Columns,
+    targets: &Columns,
+    weights: &[f32],
+    count: usize,
+    budget: f32,
+) -> (usize, f32) {
+    let sample = Pass {
+        count,
+        upto: count,
+        every: 8,
+    };
+    let bounds = max_errors(d, targets, weights, sample);
+    let guess = bounds.iter().position(|&e| e <= budget).unwrap_or(count);
+    let mut upto = (guess + 2).min(count);
+    loop {
+        let errors = max_errors(
+            d,
+            targets,
+            weights,
+            Pass {
+                count,
+                upto,
+                every: 1,
+            },
+        );
+        if let Some(k) = errors.iter().position(|&e| e <= budget) {
+            return (k, errors[k]);
+        }
+        if upto == count {
+            return (count, errors[count]);
+        }
+        upto = count;
+    }
 }
 
 /// Vertices a [`block_errors`] step holds in registers.
@@ -192,25 +251,26 @@ fn block_errors(
     d: &Columns,
     targets: &Columns,
     weights: &[f32],
-    count: usize,
+    pass: Pass,
     range: std::ops::Range<usize>,
     frames: usize,
 ) -> Vec<f32> {
+    let (count, upto) = (pass.count, pass.upto);
     type Lanes = [f32; LANES];
     let len = range.len().next_multiple_of(LANES);
     // The block's displacements and targets, copied into runs of `len`
     // per axis (zero-padded): a few long sequential reads of the big
     // columns instead of scattered ones.
     let local_d = gather(d, frames, &range, len);
-    let local_t = gather(targets, count, &range, len);
+    let local_t = gather(targets, upto, &range, len);
     let lanes_of = |local: &[f32], column: usize, axis: usize, at: usize| -> Lanes {
         let start = (column * 3 + axis) * len + at;
         local[start..start + LANES]
             .try_into()
             .expect("LANES floats")
     };
-    let mut worst: Vec<Lanes> = vec![[0.0; LANES]; count + 1];
-    let mut t: Vec<[Lanes; 3]> = vec![[[0.0; LANES]; 3]; count];
+    let mut worst: Vec<Lanes> = vec![[0.0; LANES]; upto + 1];
+    let mut t: Vec<[Lanes; 3]> = vec![[[0.0; LANES]; 3]; upto];
     for at in (0..len).step_by(LANES) {
         for (k, tk) in t.iter_mut().enumerate() {
             *tk = [0, 1, 2].map(|a| lanes_of(&local_t, k, a, at));
@@ -218,7 +278,7 @@ fn block_errors(
         for j in 0..frames {
             let mut r = [0, 1, 2].map(|a| lanes_of(&local_d, j, a, at));
             keep_largest(&mut worst[0], &r);
-            let frame_weights = &weights[j * count..(j + 1) * count];
+            let frame_weights = &weights[j * count..j * count + upto];
             for ((tk, &w), worst) in t.iter().zip(frame_weights).zip(&mut worst[1..]) {
                 subtract(&mut r, tk, w);
                 keep_largest(worst, &r);
@@ -285,7 +345,12 @@ mod tests {
         let p = principal(&d, &nd, 16);
         // Beyond the two true directions only f32 rounding noise is left.
         assert!(p.count >= 2);
-        let errors = max_errors(&d, &p.positions, &p.weights, p.count);
+        let all = Pass {
+            count: p.count,
+            upto: p.count,
+            every: 1,
+        };
+        let errors = max_errors(&d, &p.positions, &p.weights, all);
         assert!(errors[0] >= 4.0 - 1e-4, "{errors:?}");
         assert!(errors[1] > 0.1, "{errors:?}");
         assert!(errors[2] < 1e-5, "{errors:?}");
@@ -303,6 +368,11 @@ mod tests {
         d.data.extend([0.0; 9]);
         let p = principal(&d, &d.clone(), 16);
         assert_eq!(p.count, 0);
-        assert_eq!(max_errors(&d, &p.positions, &p.weights, 0), vec![0.0]);
+        let none = Pass {
+            count: 0,
+            upto: 0,
+            every: 1,
+        };
+        assert_eq!(max_errors(&d, &p.positions, &p.weights, none), vec![0.0]);
     }
 }

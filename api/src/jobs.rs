@@ -235,7 +235,7 @@ pub struct MorphJobOptions {
     /// Keyframes of `animation.glb` (2 to `frames`): with `animation:
     /// keyframes`, its morph targets (default 24, or `frames` when
     /// fewer); with `basis`, the frames sampled for its weights (default
-    /// all).
+    /// all, at most 120).
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
@@ -361,10 +361,10 @@ pub enum SketchMethod {
 #[serde(rename_all = "snake_case")]
 pub enum AnimationKind {
     /// The motion's principal displacements: at most 16 morph targets,
-    /// the fewest that keep every vertex of every frame within 0.5 % of
-    /// the tree's height, and one weight key per frame (`keyframes` sets
-    /// how many frames are sampled; default all). Leaves and bark change
-    /// material in a staggered dissolve. Default.
+    /// the fewest that keep every vertex of every sampled frame within
+    /// 0.5 % of the tree's height, and one weight key per sampled frame
+    /// (`keyframes` sets how many; default all, at most 120). Leaves and
+    /// bark change material in a staggered dissolve. Default.
     #[default]
     Basis,
     /// One morph target per keyframe (`keyframes`, default 24): the
@@ -416,7 +416,7 @@ pub struct SketchJobOptions {
     /// Keyframes of `animation.glb` (2 to `frames`): with `animation:
     /// keyframes`, its morph targets (default 24, or `frames` when
     /// fewer); with `basis`, the frames sampled for its weights (default
-    /// all).
+    /// all, at most 120).
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"

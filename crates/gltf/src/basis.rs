@@ -22,17 +22,20 @@
 //! - Targets carry POSITION and NORMAL; the weights are the frames'
 //!   coordinates in the basis, so any glTF player (three.js, Blender's
 //!   shape keys, game engines) plays them as ordinary morph targets.
+//!   Blender clamps shape-key values to [0, 1], so the weights are mapped
+//!   onto that range and a constant *rest offset* target makes up the
+//!   difference (see `Targets`).
 //!
 //! # Looks: dissolves instead of blends
 //! Core glTF cannot blend two textures on one surface, and a blend factor
 //! in a vertex attribute needs a shader of our own. So the change of
 //! material is a **dissolve in a few steps** that every player follows:
-//! the meshes are drawn by several nodes, each holding the vertices it
-//! draws (three.js keeps morph data per mesh, so nodes sharing one big
-//! vertex set would each upload all of it), and each swapping node's
+//! the meshes are drawn by several nodes, and each swapping node's
 //! `scale` switches between 1 and 0 with STEP interpolation at its swap
-//! time — a node at scale 0 draws nothing. The two nodes of a swap share
-//! their vertex accessors.
+//! time — a node at scale 0 draws nothing. Every primitive holds only the
+//! vertices it draws (three.js keeps morph data per primitive, so
+//! primitives sharing one big vertex set would each upload all of it);
+//! the two sides of a swap share theirs.
 //!
 //! - **Leaves** whose two materials differ swap when their blend passes
 //!   their own threshold (a hash of the leaf index, as in
@@ -52,12 +55,13 @@
 //!
 //! # Encodings
 //! As [`crate::animated`]: float, or `KHR_mesh_quantization` (base
-//! positions on the `i16` grid of the bounds, base normals `i8`), or that
-//! compressed with `EXT_meshopt_compression`. Quantised targets are
-//! normalised `i16` for positions *and* normals, each target scaled by its
-//! own largest component (its weights carry the scale back), so a target
-//! uses the whole `i16` range whatever its share of the motion. The error
-//! reported is measured with the targets as stored.
+//! positions on the `i16` grid of the bounds, base normals `i8`, leaf
+//! texture coordinates `u16`), or that compressed with
+//! `EXT_meshopt_compression`. Quantised targets are normalised `i16`
+//! positions in the grid's units and `i8` normal changes; a target whose
+//! positions would overflow the range is divided by its largest component
+//! and its weights carry the scale back (see `quantised_target`). The
+//! error reported for them is measured as a player reads them back.
 //!
 //! The nodes hang under one root node `tree`, which carries the
 //! quantisation grid's translation and scale, so the swap nodes' own
@@ -94,6 +98,10 @@ pub const ERROR_BUDGET: f32 = 0.005;
 pub const MAX_LEAF_GROUPS: usize = 16;
 /// Bands in which the bark changes, from the ground up.
 pub const BARK_BANDS: usize = 8;
+/// Most bytes of samples a builder keeps (8 per vertex and sample:
+/// position and normal displacements): beyond, it asks for fewer samples
+/// rather than exhaust the memory of the process rendering it.
+pub const MAX_SAMPLE_BYTES: u64 = 3 << 30;
 
 /// Which animated GLB to build.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -208,8 +216,10 @@ pub struct BasisGlbBuilder {
     fading: Vec<u32>,
     thresholds: Vec<f32>,
     swaps: Vec<Option<u32>>,
-    /// Vertical extent of the samples: lowest and highest `y` of each.
+    /// The largest vertical extent of a sample.
     heights: f32,
+    /// Most samples [`MAX_SAMPLE_BYTES`] allows.
+    max_samples: usize,
 }
 
 /// The first frame as the file stores it, and what the document needs of
@@ -247,7 +257,11 @@ impl BasisGlbBuilder {
         let looks = Looks::new(topology, meshes.leaves(), 64);
         let fading = fading_leaves(topology);
         let rows = 3 * (meshes.branches().vertex_count() + meshes.leaves().vertex_count());
-        let capacity = options.keyframes.clamp(2, 1024);
+        let max_samples = (MAX_SAMPLE_BYTES / (8 * rows.max(1) as u64)) as usize;
+        if options.keyframes > max_samples {
+            return Err(too_many_samples(options.keyframes, rows / 3, max_samples));
+        }
+        let capacity = options.keyframes.clamp(2, max_samples.max(2));
         Ok(BasisGlbBuilder {
             thresholds: fading.iter().map(|&i| threshold(i)).collect(),
             swaps: vec![None; fading.len()],
@@ -263,6 +277,7 @@ impl BasisGlbBuilder {
             times: Vec::new(),
             bark_blends: Vec::new(),
             heights: 0.0,
+            max_samples,
         })
     }
 
@@ -288,9 +303,12 @@ impl BasisGlbBuilder {
                 frame.t
             )));
         }
-        if self.times.len() >= 4096 {
-            return Err(EncodeError::TooLarge(
-                "at most 4,096 frames can be sampled into one animation".into(),
+        if self.times.len() >= self.max_samples {
+            let vertices = self.displacements.rows / 3;
+            return Err(too_many_samples(
+                self.times.len() + 1,
+                vertices,
+                self.max_samples,
             ));
         }
         self.meshes.mesh(frame)?;
@@ -552,6 +570,15 @@ impl BasisGlbBuilder {
         }
         bark_looks
     }
+}
+
+/// The refusal of more samples than [`MAX_SAMPLE_BYTES`] allows.
+fn too_many_samples(samples: usize, vertices: usize, max: usize) -> EncodeError {
+    EncodeError::TooLarge(format!(
+        "a basis animation of {samples} sampled frames of {vertices} vertices needs more than \
+         {} GiB; ask for at most {max} keyframes",
+        MAX_SAMPLE_BYTES >> 30
+    ))
 }
 
 /// Appends `values − base` as one planar column (`values` in pieces:

@@ -342,9 +342,21 @@ fn misuse_is_refused() {
         Err(EncodeError::InvalidOptions(_))
     ));
     assert!(matches!(
-        BasisGlbBuilder::new(topology, radii, bounds, &options.with_duration(-1.0)),
+        BasisGlbBuilder::new(
+            topology,
+            radii,
+            bounds,
+            &options.clone().with_duration(-1.0)
+        ),
         Err(EncodeError::InvalidOptions(_))
     ));
+    // More samples than the memory cap allows: a clear refusal up front.
+    let Err(EncodeError::TooLarge(message)) =
+        BasisGlbBuilder::new(topology, radii, bounds, &options.with_keyframes(1 << 30))
+    else {
+        panic!("a billion samples were accepted");
+    };
+    assert!(message.contains("keyframes"), "{message}");
 }
 
 /// Nodes whose names start with `prefix` and the times (of `times`) at

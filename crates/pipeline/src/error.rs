@@ -132,8 +132,14 @@ impl ErrorCoded for FormatError {
 
 impl ErrorCoded for EncodeError {
     fn error_code(&self) -> ErrorCode {
-        // Frames come from validated plans: an encoder's refusal is a bug.
-        ErrorCode::Internal
+        match self {
+            // An output beyond a format's or the renderer's limits (a
+            // 4 GiB GLB, a basis of too many samples): the job asked for
+            // too much, and the message says what to ask for instead.
+            EncodeError::TooLarge(_) => ErrorCode::TooLarge,
+            // Frames come from validated plans: any other refusal is a bug.
+            _ => ErrorCode::Internal,
+        }
     }
 }
 

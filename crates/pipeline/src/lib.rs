@@ -33,8 +33,8 @@ mod spec;
 pub use error::{ErrorCoded, INTERNAL_MESSAGE, JobError};
 pub use runner::PipelineRunner;
 pub use spec::{
-    DEFAULT_KEYFRAMES, JobSpec, Limits, MIN_FRAMES, MorphSpec, RenderSpec, SketchSpec, SpecError,
-    morph_options, sketch_options, view, wire_view,
+    DEFAULT_BASIS_SAMPLES, DEFAULT_KEYFRAMES, JobSpec, Limits, MIN_FRAMES, MorphSpec, RenderSpec,
+    SketchSpec, SpecError, morph_options, sketch_options, view, wire_view,
 };
 
 /// The stages a job goes through, in order; reported in `GET /v1/jobs/{id}`

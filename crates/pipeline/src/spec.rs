@@ -28,6 +28,9 @@ use treemorph_tree::glam::{Vec2, Vec3};
 pub const MIN_FRAMES: u32 = 2;
 /// Keyframes of the animated GLB when the request names none.
 pub const DEFAULT_KEYFRAMES: u32 = 24;
+/// Frames a basis animation samples when the job does not say (all of
+/// them for shorter jobs).
+pub const DEFAULT_BASIS_SAMPLES: u32 = 120;
 /// Seed of the random leaf assignment: fixed, so the same request always
 /// gives the same animation.
 const RANDOM_LEAVES_SEED: u64 = 0;
@@ -340,11 +343,12 @@ fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, Spec
         treemorph_api::jobs::AnimationKind::Basis => AnimationKind::Basis,
         treemorph_api::jobs::AnimationKind::Keyframes => AnimationKind::Keyframes,
     };
-    // A basis samples every frame unless told otherwise: its size does not
-    // grow with the samples.
+    // A basis samples every frame unless told otherwise (its size does not
+    // grow with the samples), up to DEFAULT_BASIS_SAMPLES: its builder
+    // keeps every sample's displacements.
     let default_keyframes = match animation {
         AnimationKind::Keyframes => DEFAULT_KEYFRAMES,
-        _ => frames,
+        _ => DEFAULT_BASIS_SAMPLES,
     };
     if !(MIN_FRAMES..=limits.max_frames).contains(&frames) {
         return Err(SpecError::Frames {

@@ -61,6 +61,8 @@ fn keyframes_resolve_to_the_kinds_default_or_the_frame_count() {
     let spec = JobSpec::parse(&morph(60, MorphJobOptions::default()), &Limits::default()).unwrap();
     assert_eq!(spec.render().keyframes, 60);
     assert_eq!(spec.render().animation, AnimationKind::Basis);
+    let spec = JobSpec::parse(&morph(600, MorphJobOptions::default()), &Limits::default()).unwrap();
+    assert_eq!(spec.render().keyframes, DEFAULT_BASIS_SAMPLES);
     let keyframes = MorphJobOptions {
         animation: treemorph_api::jobs::AnimationKind::Keyframes,
         ..MorphJobOptions::default()

@@ -230,7 +230,10 @@ pub trait Runner: Send + Sync + 'static {
 ///
 /// Bump it with every change that alters any output byte of a job for the
 /// same request and trees (geometry, meshing, encoding, metrics).
-pub const RENDER_VERSION: u32 = 1;
+///
+/// - 1: the first plan-first jobs.
+/// - 2: `animation.glb` is a motion basis by default (`options.animation`).
+pub const RENDER_VERSION: u32 = 2;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

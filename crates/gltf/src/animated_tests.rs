@@ -1,5 +1,4 @@
 use glam::Vec3;
-use treemorph_generate::{GenerateOptions, Preset, generate};
 use treemorph_tree::{Aabb, Frame};
 
 use super::*;
@@ -8,8 +7,7 @@ use crate::frames::FrameMeshes;
 use crate::test_support::{Parsed, canonical_triangles};
 
 fn sway(frames: usize) -> Sway {
-    let tree = generate(&GenerateOptions::new(Preset::Maple, 3).with_size(300)).unwrap();
-    Sway::new(&tree, frames)
+    crate::test_support::maple_sway(frames)
 }
 
 fn build(sway: &Sway, options: &AnimatedOptions) -> Vec<u8> {

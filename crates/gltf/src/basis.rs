@@ -609,8 +609,9 @@ struct Targets {
     stored: Vec<StoredTarget>,
     /// Written weights, `[frame · stored.len() + k]`.
     weights: Vec<f32>,
-    /// The stored positions as a player reads them back (world units) and
-    /// the weights that go with them, for measuring the written error.
+    /// Quantised encodings: the stored positions as a player reads them
+    /// back (world units) and the weights that go with them, for measuring
+    /// the written error (float targets are not measured again).
     read_back: Columns,
     weights_read_back: Vec<f32>,
     /// Whether the first target is the rest offset.
@@ -678,12 +679,11 @@ impl Targets {
         let count = columns.len();
         let rows = columns.first().map_or(0, |c| c.0.len());
         let mut weights = unit.clone();
-        let mut read_back = Columns::new(rows, count);
+        let mut read_back = Columns::new(rows, if grid.is_some() { count } else { 0 });
         let mut stored = Vec::with_capacity(count);
         for (t, (pos, nrm)) in columns.into_iter().enumerate() {
             match grid {
                 None => {
-                    read_back.data.extend_from_slice(&pos);
                     stored.push(StoredTarget::Float(as_vec3(&pos), as_vec3(&nrm)));
                 }
                 Some((_, s)) => {

@@ -7,8 +7,7 @@ use crate::bench::Sway;
 use crate::test_support::Parsed;
 
 fn sway(frames: usize) -> Sway {
-    let tree = generate(&GenerateOptions::new(Preset::Maple, 3).with_size(300)).unwrap();
-    Sway::new(&tree, frames)
+    crate::test_support::maple_sway(frames)
 }
 
 fn build(sway: &Sway, options: &AnimatedOptions) -> (Vec<u8>, BasisReport) {

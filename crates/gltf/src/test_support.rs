@@ -5,6 +5,7 @@
 use glam::{Vec2, Vec3};
 use serde_json::Value;
 
+use crate::bench::Sway;
 use crate::gl::{BYTE, FLOAT, SHORT, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT};
 use crate::glb::Glb;
 
@@ -260,4 +261,14 @@ pub(crate) fn check_with_threejs(name: &str, glb: &[u8], expected: &Value) {
         "three.js disagrees about {}",
         file.display()
     );
+}
+
+/// The animated GLB tests' sequence: a 300-branch maple swaying over
+/// `frames` frames while its leaves change material.
+pub(crate) fn maple_sway(frames: usize) -> Sway {
+    let options = treemorph_generate::GenerateOptions::new(treemorph_generate::Preset::Maple, 3);
+    Sway::new(
+        &treemorph_generate::generate(&options.with_size(300)).unwrap(),
+        frames,
+    )
 }

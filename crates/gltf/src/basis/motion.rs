@@ -99,18 +99,24 @@ pub(crate) fn principal(d: &Columns, nd: &Columns, max: usize) -> Principal {
     }
 }
 
+/// The row blocks (first row, row count) the matrix products are cut
+/// into for the parallel passes: 16 error blocks' worth of rows each.
+fn row_blocks(rows: usize) -> Vec<(usize, usize)> {
+    let block = 3 * BLOCK_VERTICES * 16;
+    (0..rows)
+        .step_by(block)
+        .map(|start| (start, block.min(rows - start)))
+        .collect()
+}
+
 /// `DᵀD` in `f64`: row blocks multiplied in parallel, summed in order.
 fn gram(d: &Columns) -> Mat<f64> {
     let frames = d.count();
     let m = d.matrix();
-    let rows = d.rows;
-    let block = (3 * BLOCK_VERTICES * 16).max(1);
-    let blocks: Vec<usize> = (0..rows.div_ceil(block)).collect();
-    let parts: Vec<Mat<f64>> = blocks
-        .par_iter()
-        .map(|&b| {
-            let start = b * block;
-            let part = m.subrows(start, block.min(rows - start));
+    let parts: Vec<Mat<f64>> = row_blocks(d.rows)
+        .into_par_iter()
+        .map(|(start, len)| {
+            let part = m.subrows(start, len);
             let g = part.transpose() * part;
             Mat::<f64>::from_fn(frames, frames, |i, j| f64::from(g[(i, j)]))
         })
@@ -148,17 +154,11 @@ fn largest_eigen(gram: &Mat<f64>, max: usize) -> (Vec<f64>, Mat<f64>) {
 /// `a · p` as columns, row blocks multiplied in parallel.
 fn multiply(a: &Columns, p: MatRef<'_, f32>) -> Columns {
     let m = a.matrix();
-    let rows = a.rows;
-    let block = (3 * BLOCK_VERTICES * 16).max(1);
-    let blocks: Vec<usize> = (0..rows.div_ceil(block)).collect();
-    let parts: Vec<Mat<f32>> = blocks
-        .par_iter()
-        .map(|&b| {
-            let start = b * block;
-            m.subrows(start, block.min(rows - start)) * p
-        })
+    let parts: Vec<Mat<f32>> = row_blocks(a.rows)
+        .into_par_iter()
+        .map(|(start, len)| m.subrows(start, len) * p)
         .collect();
-    let mut c = Columns::new(rows, p.ncols());
+    let mut c = Columns::new(a.rows, p.ncols());
     for k in 0..p.ncols() {
         for part in &parts {
             c.data.extend(part.col(k).iter().copied());

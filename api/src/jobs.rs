@@ -17,13 +17,52 @@ use crate::ErrorCode;
 /// derived one composes each variant's strict (`additionalProperties:
 /// false`) object with the `kind` tag through `allOf`, which no document
 /// can satisfy.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+///
+/// It is read by hand: serde reads a `kind`-tagged enum through a buffer
+/// that forgets where a bad value was, so a wrong `options.schedule`
+/// would be reported without its field. Each variant is read on its own,
+/// and an error names its path.
+#[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum JobRequest {
     /// Morph one tree into another.
     Morph(MorphRequest),
     /// Animate a tree into a sketched crown silhouette.
     Sketch(SketchRequest),
+}
+
+impl<'de> Deserialize<'de> for JobRequest {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<JobRequest, D::Error> {
+        use serde::de::Error;
+        let mut body = serde_json::Map::<String, serde_json::Value>::deserialize(d)?;
+        let kind = body
+            .remove("kind")
+            .ok_or_else(|| D::Error::missing_field("kind"))?;
+        let body = serde_json::Value::Object(body);
+        match kind.as_str() {
+            Some("morph") => variant(body).map(JobRequest::Morph),
+            Some("sketch") => variant(body).map(JobRequest::Sketch),
+            Some(other) => Err(D::Error::unknown_variant(other, &["morph", "sketch"])),
+            None => Err(D::Error::custom(format!(
+                "`kind` must be \"morph\" or \"sketch\", got {kind}"
+            ))),
+        }
+    }
+}
+
+/// One variant of a job request, its errors prefixed with their path.
+fn variant<T: serde::de::DeserializeOwned, E: serde::de::Error>(
+    body: serde_json::Value,
+) -> Result<T, E> {
+    serde_path_to_error::deserialize(body).map_err(|e| {
+        let path = e.path().to_string();
+        let e = e.into_inner();
+        if path == "." {
+            E::custom(e)
+        } else {
+            E::custom(format!("`{path}`: {e}"))
+        }
+    })
 }
 
 impl utoipa::PartialSchema for JobRequest {
@@ -253,6 +292,36 @@ pub struct MorphJobOptions {
     /// `keyframes` (one target per keyframe, the format before `basis`).
     #[arg(long, value_enum, default_value_t)]
     pub animation: AnimationKind,
+    /// When each operation happens: `staged` (default; first shed, then
+    /// reshape, then grow, parents before their twigs, growth from the
+    /// tip) or `linear` (every operation on one clock over the whole
+    /// morph, growth scaling about its junction).
+    #[arg(long, value_enum, default_value_t)]
+    pub schedule: ScheduleKind,
+    /// `staged` only: how far the starts of a phase's windows spread, as a
+    /// fraction of the phase, 0 to 0.9 (default 0.3: the deepest twigs
+    /// start 30 % of a phase after the trunk).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(long)]
+    pub stagger: Option<f32>,
+    /// `staged` only: the fraction of each window spent accelerating, and
+    /// as much decelerating, 0 to 0.5 (default 0.25; 0 is constant speed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(long)]
+    pub easing: Option<f32>,
+}
+
+/// When the operations of a morph happen.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum ScheduleKind {
+    /// Shed, reshape, grow; parents lead; growth from the tip. Default.
+    #[default]
+    Staged,
+    /// One clock for everything (the morph before schedules).
+    Linear,
 }
 
 /// A sketch job: `tree` is animated into the crown `sketch` drawn from

@@ -147,7 +147,9 @@ mod tests {
     #[test]
     fn morph_flags_are_the_wire_options() {
         use clap::Parser;
-        use treemorph_api::jobs::{AnimationEncoding, AnimationKind, LeafAssignment, Matching};
+        use treemorph_api::jobs::{
+            AnimationEncoding, AnimationKind, LeafAssignment, Matching, ScheduleKind,
+        };
         let none = Flags::try_parse_from(["t"]).unwrap();
         assert_eq!(none.morph, MorphJobOptions::default());
         let all = Flags::try_parse_from([
@@ -163,6 +165,12 @@ mod tests {
             "meshopt",
             "--animation",
             "keyframes",
+            "--schedule",
+            "linear",
+            "--stagger",
+            "0.2",
+            "--easing",
+            "0.1",
         ])
         .unwrap();
         assert_eq!(
@@ -174,6 +182,9 @@ mod tests {
                 keyframes: Some(5),
                 animation_encoding: AnimationEncoding::Meshopt,
                 animation: AnimationKind::Keyframes,
+                schedule: ScheduleKind::Linear,
+                stagger: Some(0.2),
+                easing: Some(0.1),
             }
         );
         assert!(Flags::try_parse_from(["t", "--no-slow-down", "true"]).is_err());

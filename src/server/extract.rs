@@ -62,15 +62,33 @@ pub async fn json_body<T: DeserializeOwned, S: Send + Sync>(
     Ok((value, bytes))
 }
 
-/// Parses JSON with our error mapping.
+/// Parses JSON with our error mapping. A value of the wrong kind is named
+/// by its path (`options.schedule`), which serde's own message leaves out
+/// for enums and nested fields.
 pub fn parse_json<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
-    serde_json::from_slice(bytes).map_err(|e| match e.classify() {
-        serde_json::error::Category::Data => ApiError::invalid(format!("invalid request: {e}")),
-        _ => ApiError::new(
-            ErrorCode::InvalidJson,
-            format!("the body is not valid JSON: {e}"),
-        ),
-    })
+    let mut de = serde_json::Deserializer::from_slice(bytes);
+    let value = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+        let path = e.path().to_string();
+        let e = e.into_inner();
+        match e.classify() {
+            serde_json::error::Category::Data if path == "." => {
+                ApiError::invalid(format!("invalid request: {e}"))
+            }
+            serde_json::error::Category::Data => {
+                ApiError::invalid(format!("invalid request at `{path}`: {e}"))
+            }
+            _ => not_json(e),
+        }
+    })?;
+    de.end().map_err(not_json)?;
+    Ok(value)
+}
+
+fn not_json(e: serde_json::Error) -> ApiError {
+    ApiError::new(
+        ErrorCode::InvalidJson,
+        format!("the body is not valid JSON: {e}"),
+    )
 }
 
 fn is_json(headers: &HeaderMap) -> bool {

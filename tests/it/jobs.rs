@@ -182,6 +182,24 @@ async fn job_requests_are_validated_before_queueing() {
             None,
         ),
         (
+            json!({"kind": "morph", "source": a, "target": b, "frames": 5, "options": {"schedule": "eased"}}),
+            422,
+            "invalid_request",
+            Some("schedule"),
+        ),
+        (
+            json!({"kind": "morph", "source": a, "target": b, "frames": 5, "options": {"stagger": 2.0}}),
+            422,
+            "invalid_job",
+            Some("stagger"),
+        ),
+        (
+            json!({"kind": "morph", "source": a, "target": b, "frames": 5, "options": {"easing": -0.1}}),
+            422,
+            "invalid_job",
+            Some("easing"),
+        ),
+        (
             json!({"kind": "morph", "source": a, "target": b, "frames": 5, "callback_url": "ftp://x/"}),
             422,
             "callback_url_refused",

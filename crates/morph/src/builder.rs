@@ -13,10 +13,11 @@ use treemorph_tree::{Frame, FrameLeafTopology, FrameTopology, NodeId, Strands, T
 use crate::correspondence::{Correspondence, Input, LeafMatch, Operation, correspond};
 use crate::error::{MorphError, Side};
 use crate::morpher::{Morpher, fraction, locate};
-use crate::options::{LeafMorph, MorphOptions};
+use crate::options::{LeafMorph, MorphOptions, ScheduleKind};
 use crate::plan::{
     ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NodeOrigin, Sample, UnionChain,
 };
+use crate::staging::{Timed, pace, schedule};
 
 /// The chain data the plan reads, copied from the analysis in one
 /// sequential pass into concatenated arrays: the build visits chains in
@@ -598,6 +599,9 @@ impl MorphPlan {
             options,
             heights,
         )?;
+        if options.schedule.kind == ScheduleKind::Staged {
+            plan.schedule.pace = pace(&plan, options.schedule.easing);
+        }
         plan.endpoint = plan.measure_endpoints(source, target);
         Ok(plan)
     }
@@ -664,11 +668,13 @@ pub(crate) fn build(
         union: &union,
         layout: &layout,
         side_data: &side_data,
+        samples: &samples,
         facts: [
             leaf_facts(source, 0),
             leaf_facts(target, source.tree.materials().leaves.len() as u32),
         ],
         linear: matches!(options.leaf_morph, LeafMorph::RandomLinear { .. }),
+        buds: options.schedule.kind == ScheduleKind::Staged,
     }
     .plan_all(&correspondence.leaves)?;
     let mut leaf_materials = source.tree.materials().leaves.clone();
@@ -698,6 +704,18 @@ pub(crate) fn build(
         source.tree.skeleton().node(0),
         target.tree.skeleton().node(0),
     );
+    let schedule = schedule(
+        &options.schedule,
+        &Timed {
+            chain_plans: &chain_plans,
+            chains: &chains,
+            samples: &samples,
+            sample_u: &sample_u,
+            sample_inv_span: &sample_inv_span,
+            leaf_plans: &leaves.plans,
+            leaf_matches: &correspondence.leaves,
+        },
+    );
     Ok(MorphPlan {
         topology,
         correspondence,
@@ -714,6 +732,7 @@ pub(crate) fn build(
         root: [source_root.position, target_root.position],
         root_radius: [source_root.radius, target_root.radius],
         slow_down: options.slow_down,
+        schedule,
         parallel,
         heights,
         endpoint: EndpointError::default(),
@@ -1099,11 +1118,18 @@ struct LeafPlanner<'a> {
     union: &'a UnionChains,
     layout: &'a ChainLayout,
     side_data: &'a [SideData],
+    samples: &'a [Sample],
     /// The source's and the target's leaves.
     facts: [Vec<LeafFacts>; 2],
     /// Whether leaves move in straight lines (`LeafMorph::RandomLinear`)
     /// rather than ride on their chains.
     linear: bool,
+    /// Whether a leaf that grows or wilts on a chain that does not (a
+    /// staged schedule) opens from the bark as a bud: its offset starts
+    /// (or ends) no farther from the axis than the wood's radius there, so
+    /// a leaf just starting to unfold neither hangs off the bark nor hides
+    /// in the wood.
+    buds: bool,
 }
 
 impl LeafPlanner<'_> {
@@ -1176,6 +1202,29 @@ impl LeafPlanner<'_> {
         )
     }
 
+    /// Where a leaf placed at `offset` with `orientation` (in `host`'s
+    /// frame on `side` at `param`) has its bud: on the bark, at the same
+    /// height along the chain, towards the leaf (the chain frame's y axis
+    /// is the tangent), or towards the blade's normal when the leaf sits
+    /// on the axis, as imported cards often do.
+    fn bud(&self, (offset, orientation): (Vec3, Quat), host: u32, side: usize, param: f32) -> Vec3 {
+        let c = &self.layout.chain_plans[host as usize];
+        let r = c.first as usize..(c.first + c.len) as usize;
+        let (u, inv_span) = (
+            &self.layout.sample_u[r.clone()],
+            &self.layout.sample_inv_span[r.clone()],
+        );
+        let s = &self.samples[r];
+        let j = locate(u, param);
+        let at = fraction(u, inv_span, j, param);
+        let radius = s[j].radius[side] + (s[j + 1].radius[side] - s[j].radius[side]) * at;
+        let radial = |v: Vec3| Vec3::new(v.x, 0.0, v.z).try_normalize();
+        let out = radial(offset)
+            .or_else(|| radial(orientation * Vec3::Z))
+            .unwrap_or(Vec3::X);
+        out * radius + Vec3::Y * offset.y
+    }
+
     /// The union chains a leaf is on at t = 0 and 1.
     fn hosts(&self, a: Option<&LeafFacts>, b: Option<&LeafFacts>) -> Result<[u32; 2], MorphError> {
         let [primary_src, primary_tgt] = &self.union.primary;
@@ -1245,6 +1294,12 @@ impl LeafPlanner<'_> {
         }
         if hc.operation == Operation::Wilt {
             offset[1] = Vec3::ZERO;
+        }
+        if self.buds && a.is_none() {
+            offset[0] = self.bud((offset[1], lb.1), host, 1, fb.param);
+        }
+        if self.buds && b.is_none() {
+            offset[1] = self.bud((offset[0], la.1), host, 0, fa.param);
         }
         let lens = [offset[0].length(), offset[1].length()];
         let hu = &self.layout.sample_u[hc.first as usize..(hc.first + hc.len) as usize];

@@ -38,6 +38,10 @@
 //! - **union chain** ([`UnionChain`]): one pair, split copy, merge copy,
 //!   growing or wilting chain. The union chains form one rooted tree; each
 //!   is one strand of the union topology.
+//! - **schedule** ([`ScheduleOptions`]): when each operation happens.
+//!   Staged (default): shed, reshape, grow, parents before twigs, growth
+//!   from the tip, paced to even speed; linear: the paper's single clock
+//!   (see `schedule.rs` for the choices).
 //! - **MTSW** (§7): maximum main-trunk support weight, the pipe-model
 //!   measure of how smoothly the weight of a crown moves between trunks.
 //!
@@ -199,9 +203,16 @@
 //! tree's materials followed by the target's; a matched leaf has material
 //! pair `[source, target]`, an unmatched one its own material twice.
 //! [`FrameLeaf::blend`](treemorph_tree::FrameLeaf) is the leaf's own
-//! interpolation weight, `t`; the output stage morphs contours and blends
+//! interpolation weight (`t` on the linear schedule, its own eased window
+//! on the staged one); the output stage morphs contours and blends
 //! textures from it. Bark is `[source bark, target bark]` with
-//! `bark_blend = t`.
+//! `bark_blend` the reshape phase's clock (`t` when linear).
+//!
+//! On the staged schedule a leaf that grows or wilts on a chain that
+//! reshapes opens from (or closes into) a bud on the bark, after its twig
+//! has reshaped (before it starts): imported leaves often sit on their
+//! twig's axis, and opening there while the branch is still thick would
+//! bury them in the wood.
 //!
 //! With [`LeafMorph::RandomLinear`] (the Figure 11 baseline) leaves are
 //! paired at random over the whole tree and their world anchors and
@@ -242,8 +253,12 @@
 //!   count as a main stem. MTSW is the heaviest main trunk's support over
 //!   the frame's total weight; the frames at t = 0 and 1 give the inputs'
 //!   MTSW whatever the matching.
-//! - `max_jump`: the largest node or leaf-anchor displacement since the
-//!   previous measured frame, over the plan height.
+//! - `max_jump`: the largest displacement of a node or a leaf quad's
+//!   corner since the previous measured frame, over the plan height.
+//! - `growth_out_of_order`, `growth_reversals`: growing and wilting chains
+//!   not growing from the tip (a segment grown beyond one short of its
+//!   full length), and growing chains that got shorter (wilting ones
+//!   longer) since the previous frame, from the frame's nodes.
 //! - `endpoint_error`: [`MorphPlan::endpoint_error`], the largest position,
 //!   radius or leaf-size difference between the frame at t = 0 and the
 //!   source (over its height) and at t = 1 and the target; nodes and leaves
@@ -264,10 +279,13 @@ mod assignment;
 mod builder;
 mod correspondence;
 mod error;
+mod growth;
 mod metrics;
 mod morpher;
 mod options;
 mod plan;
+mod schedule;
+mod staging;
 
 pub use assignment::{FORBIDDEN, match_or_leave};
 pub use correspondence::{ChainMatch, Correspondence, LeafMatch, Operation};
@@ -276,10 +294,14 @@ pub use metrics::{FrameMeter, FrameMetrics, frame_metrics};
 pub use morpher::{Morpher, point_weight};
 pub use options::{
     ChainCostWeights, ChainMatching, GroupCostWeights, LeafCostWeights, LeafMorph, MetricsOptions,
-    MorphOptions,
+    MorphOptions, ScheduleKind, ScheduleOptions,
 };
 pub use plan::{EndpointError, MorphPlan, NodeOrigin, UnionChain};
 
 #[cfg(test)]
 #[path = "tests.rs"]
 mod tests;
+
+#[cfg(test)]
+#[path = "schedule_tests.rs"]
+mod schedule_tests;

@@ -2,11 +2,12 @@
 
 use glam::Vec3;
 use serde::Serialize;
-use treemorph_tree::Frame;
 use treemorph_tree::frame::FrameMismatch;
 use treemorph_tree::geom::closest_on_segment;
+use treemorph_tree::{Frame, FrameLeaf};
 
 use crate::correspondence::Operation;
+use crate::growth::GrowthMeter;
 use crate::options::MetricsOptions;
 use crate::plan::{EndpointError, LeafMode, MorphPlan};
 
@@ -26,10 +27,18 @@ pub struct FrameMetrics {
     /// Maximum main-trunk support weight: the heaviest T(OR) over the main
     /// trunks, over the frame's total weight.
     pub mtsw: f32,
-    /// Largest displacement of a node or leaf anchor since the previous
-    /// frame measured by the same [`FrameMeter`], over the plan's height (0
-    /// for the first frame).
+    /// Largest displacement of a node or a leaf quad's corner since the
+    /// previous frame measured by the same [`FrameMeter`], over the plan's
+    /// height (0 for the first frame): leaves that unfold or fold move
+    /// their corners even where their anchors stand still.
     pub max_jump: f32,
+    /// Growing or wilting chains with a segment grown beyond one that is
+    /// not at its full length: not growing from the tip (measured on the
+    /// frame's nodes against the input chain's segment lengths).
+    pub growth_out_of_order: u32,
+    /// Growing chains shorter, or wilting chains longer, than in the
+    /// previous frame measured by the same [`FrameMeter`].
+    pub growth_reversals: u32,
     /// The plan's end-frame error (the same for every frame).
     pub endpoint_error: EndpointError,
 }
@@ -51,6 +60,16 @@ fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
     (best.0.sqrt(), best.1)
 }
 
+/// The corners of a leaf's quad as the output stage meshes it: the anchor
+/// at the middle of its base edge, `width` across and `height` up its
+/// orientation's x and y axes.
+pub(crate) fn leaf_corners(leaf: &FrameLeaf) -> [Vec3; 4] {
+    let across = leaf.orientation * Vec3::X * (0.5 * leaf.width.max(0.0));
+    let up = leaf.orientation * Vec3::Y * leaf.height.max(0.0);
+    let a = leaf.anchor;
+    [a - across, a + across, a + across + up, a - across + up]
+}
+
 /// Volume over π of a frustum (a segment with linearly varying radius): it
 /// adds up exactly when a segment is subdivided, so resampled chains weigh
 /// what their inputs weigh.
@@ -66,6 +85,7 @@ pub struct FrameMeter<'p> {
     options: MetricsOptions,
     previous: Vec<Vec3>,
     has_previous: bool,
+    growth: GrowthMeter,
     /// Children of each union chain, flattened (`child_offsets`).
     children: Vec<u32>,
     child_offsets: Vec<u32>,
@@ -200,6 +220,7 @@ impl<'p> FrameMeter<'p> {
             options: options.clone(),
             previous: Vec::new(),
             has_previous: false,
+            growth: GrowthMeter::new(plan),
             children,
             child_offsets: counts,
             subtree: vec![0.0; n],
@@ -214,6 +235,7 @@ impl<'p> FrameMeter<'p> {
     /// Forgets the previous frame (the next `max_jump` is 0).
     pub fn reset(&mut self) {
         self.has_previous = false;
+        self.growth.reset();
     }
 
     /// Measures `frame`, which must fit the plan's topology.
@@ -242,13 +264,15 @@ impl<'p> FrameMeter<'p> {
         }
 
         let mut floating_leaves = 0u32;
-        for ((leaf, len), hosts) in frame
+        for (i, ((leaf, len), hosts)) in frame
             .leaves
             .iter()
             .zip(&plan.leaf_offset_len)
             .zip(&plan.leaf_hosts)
+            .enumerate()
         {
-            let allowed = len[0] + (len[1] - len[0]) * t + eps;
+            let w = plan.schedule.leaf(i, t);
+            let allowed = len[0] + (len[1] - len[0]) * w + eps;
             let near = hosts.iter().any(|&h| {
                 let r = plan.chains()[h as usize].nodes.clone();
                 let r = r.start as usize..r.end as usize;
@@ -259,19 +283,8 @@ impl<'p> FrameMeter<'p> {
 
         let mtsw = self.mtsw(frame, t);
 
-        let mut max_jump = 0.0f32;
-        let count = pos.len() + frame.leaves.len();
-        if self.has_previous && self.previous.len() == count {
-            let anchors = frame.leaves.iter().map(|l| l.anchor);
-            for (p, q) in pos.iter().copied().chain(anchors).zip(&self.previous) {
-                max_jump = max_jump.max(p.distance(*q));
-            }
-            max_jump /= height;
-        }
-        self.previous.clear();
-        self.previous.extend(pos.iter().copied());
-        self.previous.extend(frame.leaves.iter().map(|l| l.anchor));
-        self.has_previous = true;
+        let max_jump = self.jump(frame) / height;
+        let growth = self.growth.measure(plan, frame);
 
         Ok(FrameMetrics {
             t: frame.t,
@@ -279,8 +292,30 @@ impl<'p> FrameMeter<'p> {
             floating_leaves,
             mtsw,
             max_jump,
+            growth_out_of_order: growth.out_of_order,
+            growth_reversals: growth.reversals,
             endpoint_error: plan.endpoint_error(),
         })
+    }
+
+    /// The largest distance a node or a leaf quad's corner moved since the
+    /// previous frame (0 for the first), in metres; keeps this frame's.
+    fn jump(&mut self, frame: &Frame) -> f32 {
+        let pos = &frame.positions;
+        let corners = frame.leaves.iter().flat_map(leaf_corners);
+        let count = pos.len() + 4 * frame.leaves.len();
+        let mut max_jump = 0.0f32;
+        if self.has_previous && self.previous.len() == count {
+            for (p, q) in pos.iter().copied().chain(corners).zip(&self.previous) {
+                max_jump = max_jump.max(p.distance(*q));
+            }
+        }
+        self.previous.clear();
+        self.previous.extend(pos.iter().copied());
+        self.previous
+            .extend(frame.leaves.iter().flat_map(leaf_corners));
+        self.has_previous = true;
+        max_jump
     }
 
     /// §7's maximum main-trunk support weight (see the crate docs).
@@ -291,20 +326,25 @@ impl<'p> FrameMeter<'p> {
         let leaf_density = self.options.leaf_area_density as f64;
         let pos = &frame.positions;
         let rad = &frame.radii;
-        let share = |s: [f32; 2]| ((1.0 - t) * s[0] + t * s[1]) as f64;
+        let schedule = &plan.schedule;
+        let share = |s: [f32; 2], w: f32| ((1.0 - w) * s[0] + w * s[1]) as f64;
         let segment = |a: usize, b: usize| {
             frustum(rad[a] as f64, rad[b] as f64, pos[a].distance(pos[b]) as f64) * wood
         };
         self.leaf_weight.fill(0.0);
         for (i, leaf) in frame.leaves.iter().enumerate() {
-            let host = plan.leaf_hosts[i][usize::from(t >= 0.5)];
-            self.leaf_weight[host as usize] +=
-                leaf_density * leaf.width as f64 * leaf.height as f64 * share(self.leaf_share[i]);
+            let w = schedule.leaf(i, t);
+            let host = plan.leaf_hosts[i][usize::from(w >= 0.5)];
+            self.leaf_weight[host as usize] += leaf_density
+                * leaf.width as f64
+                * leaf.height as f64
+                * share(self.leaf_share[i], w);
         }
         for (i, c) in chains.iter().enumerate() {
             let r = c.nodes.start as usize..c.nodes.end as usize;
             let own: f64 = r.clone().zip(r.skip(1)).map(|(a, b)| segment(a, b)).sum();
-            self.subtree[i] = own * share(self.chain_share[i]) + self.leaf_weight[i];
+            let w = schedule.chain_weight(i, t);
+            self.subtree[i] = own * share(self.chain_share[i], w) + self.leaf_weight[i];
         }
         // Children follow their parents, so one backward pass sums subtrees.
         for i in (0..chains.len()).rev() {
@@ -325,12 +365,18 @@ impl<'p> FrameMeter<'p> {
         let mut supports = std::mem::take(&mut self.supports);
         supports.clear();
         for g in &self.trunks {
+            let w = g
+                .members
+                .iter()
+                .map(|&i| schedule.chain_weight(i as usize, t))
+                .sum::<f32>()
+                / g.members.len() as f32;
             let together = if g.members.len() < 2 {
                 1.0
             } else if g.split {
-                1.0 - t
+                1.0 - w
             } else {
-                t
+                w
             };
             // Coincident copies are one trunk cut at their common OR; apart,
             // each is cut at its own.
@@ -393,9 +439,10 @@ impl<'p> FrameMeter<'p> {
             .iter()
             .map(|&k| {
                 let p = self.plan.growth_at(k as usize, t);
+                let w = self.plan.schedule.chain_weight(k as usize, t);
                 let presence = match chains[k as usize].operation {
-                    Operation::Grow => t,
-                    Operation::Wilt => 1.0 - t,
+                    Operation::Grow => w,
+                    Operation::Wilt => 1.0 - w,
                     _ => 1.0,
                 };
                 1.0 + (p - 1.0) * presence
@@ -414,7 +461,8 @@ impl<'p> FrameMeter<'p> {
         let rad = &frame.radii;
         let wood = self.options.wood_density as f64 * std::f64::consts::PI;
         let s = self.chain_share[i];
-        let share = ((1.0 - t) * s[0] + t * s[1]) as f64;
+        let w = plan.schedule.chain_weight(i, t);
+        let share = ((1.0 - w) * s[0] + w * s[1]) as f64;
         let mut below = 0.0f64;
         for j in 0..u.len() - 1 {
             if u[j] >= z {
@@ -434,13 +482,14 @@ impl<'p> FrameMeter<'p> {
         let leaf_density = self.options.leaf_area_density as f64;
         for (k, (leaf, l)) in frame.leaves.iter().zip(&plan.leaf_plans).enumerate() {
             if l.mode == LeafMode::OnChain && l.host as usize == i {
-                let p = l.param[0] + (l.param[1] - l.param[0]) * t;
+                let w = plan.schedule.leaf(k, t);
+                let p = l.param[0] + (l.param[1] - l.param[0]) * w;
                 if p < z {
                     let s = self.leaf_share[k];
                     below += leaf_density
                         * leaf.width as f64
                         * leaf.height as f64
-                        * ((1.0 - t) * s[0] + t * s[1]) as f64;
+                        * ((1.0 - w) * s[0] + w * s[1]) as f64;
                 }
             }
         }

@@ -7,6 +7,7 @@ use treemorph_tree::{Frame, FrameLeaf};
 
 use crate::correspondence::Operation;
 use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, Sample};
+use crate::schedule::ChainState;
 
 /// Chains per rayon task when a level is split across threads.
 const CHAINS_PER_TASK: usize = 256;
@@ -117,6 +118,44 @@ fn arc_q(a: Quat, perp: Quat, angle: f32, w: f32) -> Quat {
     a * c + perp * s
 }
 
+/// The union parameter and world frame of a chain's junction at `w`: on
+/// the parent at the interpolated growth location, or the root.
+#[inline]
+fn junction(
+    chain: &ChainPlan,
+    u: &[f32],
+    inv_span: &[f32],
+    root: Vec3,
+    w: f32,
+    done_pos: &[Vec3],
+    done_frames: &[Quat],
+) -> (Vec3, Quat) {
+    if chain.parent == NONE {
+        return (root, Quat::IDENTITY);
+    }
+    let p = chain.p[0] + (chain.p[1] - chain.p[0]) * w;
+    let pf = chain.parent_first as usize;
+    let pk = chain.parent_len as usize;
+    let pu = &u[pf..pf + pk];
+    let [lo, hi] = chain.parent_segments;
+    point_frame(
+        pu,
+        &inv_span[pf..pf + pk],
+        &done_pos[1 + pf..1 + pf + pk],
+        &done_frames[pf..pf + pk],
+        segment(pu, p, lo as usize, hi as usize),
+        p,
+    )
+}
+
+/// The output slices of one chain: positions, radii and frames of its
+/// nodes.
+struct ChainOut<'a> {
+    pos: &'a mut [Vec3],
+    rad: &'a mut [f32],
+    frames: &'a mut [Quat],
+}
+
 /// Morphs one chain: its junction on the parent at the interpolated growth
 /// location, then segment by segment in the parent's frame there.
 #[allow(clippy::too_many_arguments)]
@@ -128,111 +167,178 @@ fn morph_chain(
     inv_span: &[f32],
     root: Vec3,
     slow_down: bool,
-    t: f32,
+    state: ChainState,
     done_pos: &[Vec3],
     done_frames: &[Quat],
-    pos: &mut [Vec3],
-    rad: &mut [f32],
-    frames: &mut [Quat],
+    out: ChainOut,
 ) {
     let first = chain.first as usize;
     let k = chain.len as usize;
     let own = &samples[first..first + k];
     let own_u = &u[first..first + k];
-    let p = chain.p[0] + (chain.p[1] - chain.p[0]) * t;
-    let (junction, anchor) = if chain.parent == NONE {
-        (root, Quat::IDENTITY)
-    } else {
-        let pf = chain.parent_first as usize;
-        let pk = chain.parent_len as usize;
-        let pu = &u[pf..pf + pk];
-        let [lo, hi] = chain.parent_segments;
-        point_frame(
-            pu,
-            &inv_span[pf..pf + pk],
-            &done_pos[1 + pf..1 + pf + pk],
-            &done_frames[pf..pf + pk],
-            segment(pu, p, lo as usize, hi as usize),
-            p,
-        )
-    };
+    match state {
+        ChainState::Blend(w) => {
+            let at = junction(chain, u, inv_span, root, w, done_pos, done_frames);
+            blend_chain(chain, own, own_u, slow_down, w, at, out);
+        }
+        ChainState::Reach(reach) => {
+            let at = junction(chain, u, inv_span, root, 0.0, done_pos, done_frames);
+            let side = usize::from(chain.operation == Operation::Grow);
+            let jr = chain.junction_radius[side];
+            tip_first(own, side, (reach, jr), at, out);
+        }
+    }
+}
+
+/// A chain interpolated with weight `w` (the paper's morph, split, merge
+/// and scaling growth).
+#[inline]
+fn blend_chain(
+    chain: &ChainPlan,
+    own: &[Sample],
+    own_u: &[f32],
+    slow_down: bool,
+    w: f32,
+    (junction, anchor): (Vec3, Quat),
+    out: ChainOut,
+) {
+    let ChainOut { pos, rad, frames } = out;
+    let k = own.len();
     let op = chain.operation;
     pos[0] = junction;
     for i in 0..k - 1 {
         let s = &own[i];
-        let w = point_weight(op, slow_down, own_u[i + 1], t);
-        let dir = arc(s.dir, s.dir_perp, s.theta, w);
-        let len = s.len[0] + (s.len[1] - s.len[0]) * w;
+        let wi = point_weight(op, slow_down, own_u[i + 1], w);
+        let dir = arc(s.dir, s.dir_perp, s.theta, wi);
+        let len = s.len[0] + (s.len[1] - s.len[0]) * wi;
         pos[i + 1] = pos[i] + anchor * (dir * len);
     }
     for i in 0..k {
         let s = &own[i];
         // The junction sample takes its neighbour's weight: under a split
         // the weight at u = 0 itself would jump at t = 1.
-        let w = point_weight(op, slow_down, own_u[i.max(1)], t);
-        frames[i] = anchor * arc_q(s.frame, s.frame_perp, s.omega, w);
-        rad[i] = (s.radius[0] + (s.radius[1] - s.radius[0]) * w).max(0.0);
+        let wi = point_weight(op, slow_down, own_u[i.max(1)], w);
+        frames[i] = anchor * arc_q(s.frame, s.frame_perp, s.omega, wi);
+        rad[i] = (s.radius[0] + (s.radius[1] - s.radius[0]) * wi).max(0.0);
     }
     // The junction node sits on the parent's axis: give it the chain's own
     // thickness so its tube does not flare to the parent's girth.
-    let w = point_weight(op, slow_down, own_u[1], t);
+    let wi = point_weight(op, slow_down, own_u[1], w);
     let jr = chain.junction_radius;
-    rad[0] = (jr[0] + (jr[1] - jr[0]) * w).max(0.0);
+    rad[0] = (jr[0] + (jr[1] - jr[0]) * wi).max(0.0);
 }
 
+/// A growing or wilting chain grown `reach` metres from its junction along
+/// its shape on `side` (see `schedule`, *Tip-first growth*): segments
+/// fill base first, nodes not yet reached wait at the tip, and radii are
+/// the full chain's radii as far behind its tip as the node is behind the
+/// growing tip. The junction keeps at most `jr`.
+#[inline]
+fn tip_first(
+    own: &[Sample],
+    side: usize,
+    (reach, jr): (f32, f32),
+    (junction, anchor): (Vec3, Quat),
+    out: ChainOut,
+) {
+    let ChainOut { pos, rad, frames } = out;
+    let k = own.len();
+    let w = side as f32;
+    pos[0] = junction;
+    let mut c = 0.0f32;
+    for i in 0..k - 1 {
+        let s = &own[i];
+        let grown = (reach - c).clamp(0.0, s.len[side]);
+        pos[i + 1] = pos[i] + anchor * (arc(s.dir, s.dir_perp, s.theta, w) * grown);
+        c += s.len[side];
+    }
+    for (f, s) in frames.iter_mut().zip(own) {
+        *f = anchor * arc_q(s.frame, s.frame_perp, s.omega, w);
+    }
+    let length = c;
+    if reach >= length {
+        for (r, s) in rad.iter_mut().zip(own) {
+            *r = s.radius[side];
+        }
+        rad[0] = jr;
+    } else if reach <= 0.0 {
+        rad.fill(0.0);
+    } else {
+        pipe_radii(own, side, length - reach, reach, rad);
+        rad[0] = rad[0].min(jr);
+    }
+}
+
+/// Radii of a chain grown `reach` metres: node `i`, `c_i` metres out,
+/// takes the full chain's radius at `min(c_i, reach) + shift`, `shift` the
+/// length still to grow.
+fn pipe_radii(own: &[Sample], side: usize, shift: f32, reach: f32, rad: &mut [f32]) {
+    let k = own.len();
+    let (mut j, mut cj, mut c) = (0usize, 0.0f32, 0.0f32);
+    for i in 0..k {
+        let x = c.min(reach) + shift;
+        while j + 2 < k && cj + own[j].len[side] < x {
+            cj += own[j].len[side];
+            j += 1;
+        }
+        let l = own[j].len[side];
+        let f = if l > 0.0 {
+            ((x - cj) / l).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let (a, b) = (own[j].radius[side], own[j + 1].radius[side]);
+        rad[i] = (a + (b - a) * f).max(0.0);
+        if i + 1 < k {
+            c += own[i].len[side];
+        }
+    }
+}
+
+/// Chains `index..index + chains.len()` of one level of the union chain
+/// tree at time `t`, written into `out` (their nodes, from sample `base`
+/// on), halved across rayon tasks when `parallel`.
 #[allow(clippy::too_many_arguments)]
 fn morph_chains(
     plan: &MorphPlan,
     chains: &[ChainPlan],
+    index: usize,
     base: usize,
     t: f32,
-    done_pos: &[Vec3],
-    done_frames: &[Quat],
-    pos: &mut [Vec3],
-    rad: &mut [f32],
-    frames: &mut [Quat],
+    done: (&[Vec3], &[Quat]),
+    out: ChainOut,
     parallel: bool,
 ) {
+    let ChainOut { pos, rad, frames } = out;
     if parallel && chains.len() > CHAINS_PER_TASK {
         let mid = chains.len() / 2;
         let split = chains[mid].first as usize - base;
         let (pl, pr) = pos.split_at_mut(split);
         let (rl, rr) = rad.split_at_mut(split);
         let (fl, fr) = frames.split_at_mut(split);
+        let (left, right) = (&chains[..mid], &chains[mid..]);
         rayon::join(
             || {
-                morph_chains(
-                    plan,
-                    &chains[..mid],
-                    base,
-                    t,
-                    done_pos,
-                    done_frames,
-                    pl,
-                    rl,
-                    fl,
-                    true,
-                )
+                let out = ChainOut {
+                    pos: pl,
+                    rad: rl,
+                    frames: fl,
+                };
+                morph_chains(plan, left, index, base, t, done, out, true)
             },
             || {
-                morph_chains(
-                    plan,
-                    &chains[mid..],
-                    base + split,
-                    t,
-                    done_pos,
-                    done_frames,
-                    pr,
-                    rr,
-                    fr,
-                    true,
-                )
+                let out = ChainOut {
+                    pos: pr,
+                    rad: rr,
+                    frames: fr,
+                };
+                morph_chains(plan, right, index + mid, base + split, t, done, out, true)
             },
         );
         return;
     }
     let root = plan.root_at(t);
-    for c in chains {
+    for (i, c) in chains.iter().enumerate() {
         let off = c.first as usize - base;
         let k = c.len as usize;
         morph_chain(
@@ -242,49 +348,70 @@ fn morph_chains(
             &plan.sample_inv_span,
             root,
             plan.slow_down,
-            t,
-            done_pos,
-            done_frames,
-            &mut pos[off..off + k],
-            &mut rad[off..off + k],
-            &mut frames[off..off + k],
+            plan.schedule.chain(index + i, t),
+            done.0,
+            done.1,
+            ChainOut {
+                pos: &mut pos[off..off + k],
+                rad: &mut rad[off..off + k],
+                frames: &mut frames[off..off + k],
+            },
         );
     }
 }
 
-/// One leaf at time `t`, given the morphed positions (by node) and sample
-/// frames.
+/// One leaf with weight `w` (its schedule's at some t), given the morphed
+/// positions (by node) and sample frames.
 #[inline]
 pub(crate) fn morph_leaf(
     leaf: &LeafPlan,
     plan: &MorphPlan,
-    positions: &[Vec3],
+    (positions, radii): (&[Vec3], &[f32]),
     frames: &[Quat],
-    t: f32,
+    w: f32,
 ) -> FrameLeaf {
-    let w = t;
     let (anchor, orientation) = match leaf.mode {
         LeafMode::OnChain => {
             let c = &plan.chain_plans[leaf.host as usize];
             let (f, k) = (c.first as usize, c.len as usize);
             let param = leaf.param[0] + (leaf.param[1] - leaf.param[0]) * w;
             let u = &plan.sample_u[f..f + k];
+            let inv_span = &plan.sample_inv_span[f..f + k];
+            let [lo, hi] = leaf.segments;
+            let j = segment(u, param, lo as usize, hi as usize);
             let (point, frame) = point_frame(
                 u,
-                &plan.sample_inv_span[f..f + k],
+                inv_span,
                 &positions[1 + f..1 + f + k],
                 &frames[f..f + k],
-                segment(
-                    u,
-                    param,
-                    leaf.segments[0] as usize,
-                    leaf.segments[1] as usize,
-                ),
+                j,
                 param,
             );
-            // Both factors are unit quaternions, so the product is one.
+            let offset = leaf.position[0].lerp(leaf.position[1], w);
+            let thickness = if plan.schedule.tip_first(leaf.host as usize) {
+                let side = usize::from(c.operation == Operation::Grow);
+                let at = fraction(u, inv_span, j, param);
+                let now = radii[1 + f + j] + (radii[2 + f + j] - radii[1 + f + j]) * at;
+                // As the morpher writes it grown: the junction node has the
+                // junction radius.
+                let full_at = |i: usize| match i {
+                    0 => c.junction_radius[side],
+                    _ => plan.samples[f + i].radius[side],
+                };
+                let full = full_at(j) + (full_at(j + 1) - full_at(j)) * at;
+                if full > 0.0 {
+                    (now / full).min(1.0)
+                } else {
+                    1.0
+                }
+            } else {
+                1.0
+            };
+            // Both factors are unit quaternions, so the product is one. On
+            // a chain still growing from its tip the wood is thinner than
+            // it will be: the leaf keeps to the bark as it is now.
             (
-                point + frame * leaf.position[0].lerp(leaf.position[1], w),
+                point + frame * (offset * thickness),
                 frame * arc_q(leaf.orientation, leaf.orientation_perp, leaf.omega, w),
             )
         }
@@ -353,7 +480,7 @@ impl<'p> Morpher<'p> {
         let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
         let nodes = plan.topology.node_count();
         frame.t = t;
-        frame.bark_blend = t;
+        frame.bark_blend = plan.schedule.overall(t);
         frame.positions.resize(nodes, Vec3::ZERO);
         frame.radii.resize(nodes, 0.0);
         frame.leaves.resize(
@@ -367,7 +494,8 @@ impl<'p> Morpher<'p> {
             },
         );
         frame.positions[0] = plan.root_at(t);
-        frame.radii[0] = plan.root_radius[0] + (plan.root_radius[1] - plan.root_radius[0]) * t;
+        let root_w = plan.schedule.overall(t);
+        frame.radii[0] = plan.root_radius[0] + (plan.root_radius[1] - plan.root_radius[0]) * root_w;
 
         let parallel = plan.parallel;
         for level in &plan.levels {
@@ -379,35 +507,49 @@ impl<'p> Morpher<'p> {
             let (a, b) = (first.first as usize, (last.first + last.len) as usize);
             let (done_pos, rest_pos) = frame.positions.split_at_mut(1 + a);
             let (done_frames, rest_frames) = self.frames.split_at_mut(a);
+            let out = ChainOut {
+                pos: &mut rest_pos[..b - a],
+                rad: &mut frame.radii[1 + a..1 + b],
+                frames: &mut rest_frames[..b - a],
+            };
+            let index = level.start as usize;
             morph_chains(
                 plan,
                 chains,
+                index,
                 a,
                 t,
-                done_pos,
-                done_frames,
-                &mut rest_pos[..b - a],
-                &mut frame.radii[1 + a..1 + b],
-                &mut rest_frames[..b - a],
+                (done_pos, done_frames),
+                out,
                 parallel,
             );
         }
 
         let positions = &frame.positions;
+        let radii = &frame.radii;
         let frames = &self.frames;
         if parallel {
             frame
                 .leaves
                 .par_chunks_mut(LEAVES_PER_TASK)
                 .zip(plan.leaf_plans.par_chunks(LEAVES_PER_TASK))
-                .for_each(|(out, leaves)| {
-                    for (o, l) in out.iter_mut().zip(leaves) {
-                        *o = morph_leaf(l, plan, positions, frames, t);
+                .enumerate()
+                .for_each(|(chunk, (out, leaves))| {
+                    let first = chunk * LEAVES_PER_TASK;
+                    for (i, (o, l)) in out.iter_mut().zip(leaves).enumerate() {
+                        let w = plan.schedule.leaf(first + i, t);
+                        *o = morph_leaf(l, plan, (positions, radii), frames, w);
                     }
                 });
         } else {
-            for (o, l) in frame.leaves.iter_mut().zip(&plan.leaf_plans) {
-                *o = morph_leaf(l, plan, positions, frames, t);
+            for (i, (o, l)) in frame.leaves.iter_mut().zip(&plan.leaf_plans).enumerate() {
+                *o = morph_leaf(
+                    l,
+                    plan,
+                    (positions, radii),
+                    frames,
+                    plan.schedule.leaf(i, t),
+                );
             }
         }
     }

@@ -9,6 +9,7 @@ use treemorph_analysis::ChainId;
 use treemorph_tree::{FrameTopology, NodeId};
 
 use crate::correspondence::{Correspondence, LeafMatch, Operation};
+use crate::schedule::Schedule;
 
 /// A chain of the union topology: one matched pair (or one copy of a split
 /// or merge), or one growing or wilting chain. Its nodes are a contiguous
@@ -149,6 +150,7 @@ pub struct MorphPlan {
     pub(crate) root: [Vec3; 2],
     pub(crate) root_radius: [f32; 2],
     pub(crate) slow_down: bool,
+    pub(crate) schedule: Schedule,
     pub(crate) parallel: bool,
     pub(crate) heights: [f32; 2],
     pub(crate) endpoint: EndpointError,
@@ -199,13 +201,14 @@ impl MorphPlan {
         self.endpoint
     }
 
+    /// The root node at time `t` (it moves with the reshape phase).
     pub(crate) fn root_at(&self, t: f32) -> Vec3 {
-        self.root[0].lerp(self.root[1], t)
+        self.root[0].lerp(self.root[1], self.schedule.overall(t))
     }
 
     /// Union parameter of a chain's growth location at time `t`.
     pub(crate) fn growth_at(&self, chain: usize, t: f32) -> f32 {
         let p = self.chain_plans[chain].p;
-        p[0] + (p[1] - p[0]) * t
+        p[0] + (p[1] - p[0]) * self.schedule.chain_weight(chain, t)
     }
 }

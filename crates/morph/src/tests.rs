@@ -264,7 +264,8 @@ fn length(points: &[Vec3]) -> f32 {
 fn growing_and_wilting_chains_go_from_and_to_nothing() {
     let a = tree(Preset::Conifer, 5, 300);
     let b = tree(Preset::Maple, 6, 300);
-    let p = plan(&a, &b, &MorphOptions::default());
+    let linear = MorphOptions::default().with_schedule(ScheduleOptions::linear());
+    let p = plan(&a, &b, &linear);
     let (f0, fh, f1) = (p.frame(0.0), p.frame(0.5), p.frame(1.0));
     let (mut grows, mut wilts) = (0, 0);
     for (i, c) in p.chains().iter().enumerate() {
@@ -308,7 +309,8 @@ fn growing_and_wilting_chains_go_from_and_to_nothing() {
 fn split_copies_coincide_at_the_start_and_part_from_the_tip() {
     let a = tree(Preset::Eucalyptus, 1, 600);
     let b = tree(Preset::Shrub, 2, 600);
-    let p = plan(&a, &b, &MorphOptions::default());
+    let linear = MorphOptions::default().with_schedule(ScheduleOptions::linear());
+    let p = plan(&a, &b, &linear);
     let copies: Vec<usize> = (0..p.chains().len())
         .filter(|&i| p.chains()[i].parent.is_none())
         .collect();
@@ -336,7 +338,7 @@ fn split_copies_coincide_at_the_start_and_part_from_the_tip() {
     // Without the slow-down the same copies move uniformly.
     let options = MorphOptions {
         slow_down: false,
-        ..MorphOptions::default()
+        ..linear
     };
     let q = plan(&a, &b, &options);
     let (g0, gh, g1) = (q.frame(0.0), q.frame(0.5), q.frame(1.0));
@@ -717,7 +719,8 @@ fn options_read_from_partial_json_and_plans_cross_threads() {
 fn morphing_chains_keep_their_interpolated_length() {
     let a = tree(Preset::Willow, 3, 300);
     let b = tree(Preset::Conifer, 4, 300);
-    let p = plan(&a, &b, &MorphOptions::default());
+    let linear = MorphOptions::default().with_schedule(ScheduleOptions::linear());
+    let p = plan(&a, &b, &linear);
     let mut checked = 0;
     for t in [0.25f32, 0.5, 0.8] {
         let f = p.frame(t);

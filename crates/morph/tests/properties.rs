@@ -94,8 +94,10 @@ proptest! {
         let (tb, ab) = analysed(b, sb, 150);
         let plan = MorphPlan::new(&ta, &aa, &tb, &ab, &options).unwrap();
         // Halving the time step about halves the largest step of a
-        // continuous motion; a jump would not shrink.
+        // continuous motion; a jump would not shrink. A staged morph is
+        // paced to even speed, so its largest step is a short burst (a
+        // leaf unfolding) that halves less exactly: 0.7, not 0.6.
         let (j60, j120) = (max_jump(&plan, 60), max_jump(&plan, 120));
-        prop_assert!(j120 <= 0.6 * j60 + 1e-6, "{}→{}: {} at 60 frames, {} at 120", a, b, j60, j120);
+        prop_assert!(j120 <= 0.7 * j60 + 1e-6, "{}→{}: {} at 60 frames, {} at 120", a, b, j60, j120);
     }
 }

@@ -22,6 +22,16 @@
 //! crown flattened into a slab facing the camera shows as a falling
 //! ratio). The summary carries `max_stretch` and `max_growth`.
 //!
+//! # How a morph moves, in `metrics.json`
+//! `max_jump` per frame (the farthest a node or leaf corner moved since
+//! the previous frame, over the height) and `jump_ratio`, the largest of
+//! those over the median (frames after the first): near 1 for even
+//! motion, large where a schedule's window edges make the motion spike.
+//! `growth_out_of_order` per frame counts growing or wilting chains not
+//! growing from the tip, and `growth_reversals` those that shrank while
+//! growing (or grew while wilting); the summary carries the largest of
+//! each.
+//!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
 //! animation at a few instants to fix what must not change from frame to
@@ -227,6 +237,8 @@ struct MorphSeries {
     constructed_floating_leaves: Vec<u32>,
     mtsw: Vec<f32>,
     max_jump: Vec<f32>,
+    growth_out_of_order: Vec<u32>,
+    growth_reversals: Vec<u32>,
 }
 
 impl MorphSeries {
@@ -238,6 +250,8 @@ impl MorphSeries {
             constructed_floating_leaves: Vec::with_capacity(n),
             mtsw: Vec::with_capacity(n),
             max_jump: Vec::with_capacity(n),
+            growth_out_of_order: Vec::with_capacity(n),
+            growth_reversals: Vec::with_capacity(n),
         }
     }
 
@@ -248,12 +262,18 @@ impl MorphSeries {
         self.constructed_floating_leaves.push(m.floating_leaves);
         self.mtsw.push(m.mtsw);
         self.max_jump.push(m.max_jump);
+        self.growth_out_of_order.push(m.growth_out_of_order);
+        self.growth_reversals.push(m.growth_reversals);
     }
 
     /// `metrics.json` and the job's summary metrics.
     fn into_json(self, frames: u32, endpoint: treemorph_morph::EndpointError) -> (Value, Value) {
+        let max = |v: &[u32]| v.iter().copied().max().unwrap_or(0);
         let mut summary = json!({
             "max_jump": self.max_jump.iter().copied().fold(0.0f32, f32::max),
+            "jump_ratio": jump_ratio(&self.max_jump),
+            "growth_out_of_order": max(&self.growth_out_of_order),
+            "growth_reversals": max(&self.growth_reversals),
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
         let mut metrics = json!({
@@ -264,11 +284,28 @@ impl MorphSeries {
             "constructed_floating_leaves": self.constructed_floating_leaves,
             "mtsw": self.mtsw,
             "max_jump": self.max_jump,
+            "jump_ratio": jump_ratio(&self.max_jump),
+            "growth_out_of_order": self.growth_out_of_order,
+            "growth_reversals": self.growth_reversals,
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
         self.written.write_into(&mut metrics, &mut summary);
         (metrics, summary)
     }
+}
+
+/// The largest per-frame jump over the median one (frames after the
+/// first, which has no predecessor): 1 for uniform motion, large for a
+/// spike; 0 when the median frame does not move.
+fn jump_ratio(max_jump: &[f32]) -> f32 {
+    let mut jumps = max_jump.get(1..).unwrap_or_default().to_vec();
+    if jumps.is_empty() {
+        return 0.0;
+    }
+    jumps.sort_by(f32::total_cmp);
+    let median = jumps[jumps.len() / 2];
+    let max = jumps[jumps.len() - 1];
+    if median > 0.0 { max / median } else { 0.0 }
 }
 
 fn run_sketch(

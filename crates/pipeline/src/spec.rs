@@ -16,7 +16,7 @@
 
 use treemorph_api::jobs::{
     AnimationEncoding, JobKind, JobRequest, LeafAssignment, Matching, MorphJobOptions,
-    MorphRequest, Outputs, SketchFit, SketchJobOptions, SketchMethod, SketchRequest,
+    MorphRequest, Outputs, ScheduleKind, SketchFit, SketchJobOptions, SketchMethod, SketchRequest,
 };
 use treemorph_gltf::animated::AnimatedEncoding;
 use treemorph_gltf::basis::AnimationKind;
@@ -241,6 +241,16 @@ pub fn morph_options(o: &MorphJobOptions) -> MorphOptions {
         .with_leaf_morph(leaf_morph(o.leaves));
     if let Some(slow_down) = o.slow_down {
         options = options.with_slow_down(slow_down);
+    }
+    options.schedule.kind = match o.schedule {
+        ScheduleKind::Staged => treemorph_morph::ScheduleKind::Staged,
+        ScheduleKind::Linear => treemorph_morph::ScheduleKind::Linear,
+    };
+    if let Some(stagger) = o.stagger {
+        options.schedule.stagger = stagger;
+    }
+    if let Some(easing) = o.easing {
+        options.schedule.easing = easing;
     }
     options
 }

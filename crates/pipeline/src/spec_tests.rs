@@ -149,3 +149,34 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn the_schedule_reaches_the_morph_options() {
+    use treemorph_api::jobs::ScheduleKind;
+    let staged = |options| match JobSpec::parse(&morph(5, options), &Limits::default()) {
+        Ok(JobSpec::Morph(spec)) => Ok(spec.options.schedule),
+        Ok(_) => panic!("not a morph"),
+        Err(e) => Err(e),
+    };
+    let default = staged(MorphJobOptions::default()).unwrap();
+    assert_eq!(default, treemorph_morph::ScheduleOptions::default());
+    let options = MorphJobOptions {
+        schedule: ScheduleKind::Linear,
+        stagger: Some(0.1),
+        easing: Some(0.5),
+        ..MorphJobOptions::default()
+    };
+    let got = staged(options).unwrap();
+    assert_eq!(got.kind, treemorph_morph::ScheduleKind::Linear);
+    assert_eq!((got.stagger, got.easing), (0.1, 0.5));
+    for (stagger, easing, option) in [(Some(1.5), None, "stagger"), (None, Some(0.7), "easing")] {
+        let options = MorphJobOptions {
+            stagger,
+            easing,
+            ..MorphJobOptions::default()
+        };
+        let err = staged(options).unwrap_err();
+        assert_eq!(err.error_code(), ErrorCode::InvalidJob);
+        assert!(err.to_string().contains(option), "{err}");
+    }
+}

@@ -1,0 +1,325 @@
+//! [`Schedule`]: when each union chain and leaf moves within [0, 1].
+//!
+//! The paper runs every operation on one clock, `t` itself. A staged
+//! schedule ([`ScheduleKind::Staged`]) gives each operation its own
+//! **window** of `t` and eases inside it:
+//!
+//! - **Phases.** Wilting chains and leaves shed in `[0, 0.45]`, the
+//!   matched chains reshape in `[0.1, 0.9]` and growth happens in
+//!   `[0.55, 1]`: first shed, then reshape, then grow, overlapping so the
+//!   motion never stops. A phase with nothing to do lends its time to the
+//!   reshape: without wilting it starts at 0, without growth it ends at 1.
+//! - **Parents lead.** A reshaping chain's window starts
+//!   `stagger × d` of the phase after the phase starts, with
+//!   `d = (level + p) / levels` (`p` its mean growth location along the
+//!   parent, `levels` the union chain tree's depth plus one), and lasts
+//!   `1 − stagger` of the phase. A child's
+//!   `d` is never below its parent's, so trunks settle first and twigs
+//!   follow, the twigs near a parent's base before those near its tip.
+//!   Wilting leaves on reshaping chains fold in the shed phase twigs first
+//!   (`1 − d`), growing leaves unfold in the growth phase twigs last; a
+//!   leaf folds before its twig starts to reshape and unfolds after it has
+//!   finished (at least 0.1 of `t` for it), so it opens and closes on the
+//!   bark it belongs to, never inside a branch that is still thinning.
+//! - **Slow-down.** Split and merge copies keep the paper's slow-down
+//!   coefficient inside their window: the window's clock is their `t`.
+//! - **Easing.** Inside a window the clock accelerates uniformly over the
+//!   first `easing` of it, runs at constant speed, and decelerates over
+//!   the last `easing` ([`Ease`]): C¹ at both ends, exact 0 and 1 there,
+//!   so t = 0 is the source and t = 1 the target.
+//! - **Tip-first growth.** A growing subtree (a growing union chain whose
+//!   parent does not grow, with every growing chain on it) has one clock
+//!   over the growth phase and one **front** travelling out from its
+//!   junction at constant speed along the branches: a chain whose base is
+//!   `b` metres from the subtree's junction (along its ancestors' target
+//!   shapes) has grown `front − b` metres of its target shape, base fixed
+//!   and tip advancing, so its children start exactly when the tip passes
+//!   their growth location. The front travels `1.25 ×` the subtree's
+//!   longest base-to-tip path: a leaf `a` metres out unfolds (scales from
+//!   zero, its offset from the axis with it) while the front goes from `a`
+//!   to `a + 0.25 ×` that path (eased like a window, so a big leaf's
+//!   corners do not start at full speed), so it opens only after its twig
+//!   reached it and the last ones finish at t = 1. Radii follow the pipe model
+//!   from the tip: a point `x` metres behind the growing tip has the radius
+//!   the grown chain has `x` metres behind its tip, so twig tips stay thin
+//!   and bases thicken as the chain lengthens.
+//! - **Wilting** is growth backwards on its own clock over the shed
+//!   phase: leaves fold first, then each chain retracts into its
+//!   junction, outermost first.
+//!
+//! [`ScheduleKind::Linear`] keeps the paper's clock: every weight is `t`
+//! and growth scales about the junction.
+//!
+//! - **Pacing.** Windows of different lengths and depths leave some
+//!   stretches of `t` busy and others nearly still (a eucalyptus's big
+//!   limbs reshape early, its twigs' growth late moves little). A staged
+//!   plan therefore samples its own motion at 64 instants (the farthest
+//!   any node or leaf corner moves between neighbours) and plays it so
+//!   that the motion covered by `t` follows the easing over the whole
+//!   morph: every frame moves about as far as the next, with a gentle
+//!   start and end. A little time (5 % of the mean) is kept for every
+//!   stretch, so nothing is skipped.
+//!
+//! Bark textures and the root follow the reshape phase's clock.
+
+/// The shed phase: wilting chains and leaves.
+pub(crate) const SHED: [f32; 2] = [0.0, 0.45];
+/// The reshape phase: matched chains (also bark and root).
+pub(crate) const RESHAPE: [f32; 2] = [0.1, 0.9];
+/// The growth phase: growing chains and leaves.
+pub(crate) const GROW: [f32; 2] = [0.55, 1.0];
+/// How far the front travels while a leaf unfolds, as a fraction of its
+/// subtree's longest base-to-tip path.
+pub(crate) const UNFOLD: f32 = 0.25;
+
+/// A window of `t`, stored as its start and inverse length.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Window {
+    start: f32,
+    inv_len: f32,
+}
+
+impl Window {
+    /// All of [0, 1].
+    pub(crate) const FULL: Window = Window {
+        start: 0.0,
+        inv_len: 1.0,
+    };
+
+    /// `[start, end]`, `end > start`.
+    pub(crate) fn new(start: f32, end: f32) -> Window {
+        Window {
+            start,
+            inv_len: 1.0 / (end - start),
+        }
+    }
+
+    /// A window starting `delay` (a fraction) into `phase` and lasting the
+    /// phase's `1 − stagger`.
+    pub(crate) fn staggered(phase: [f32; 2], stagger: f32, delay: f32) -> Window {
+        let len = phase[1] - phase[0];
+        let start = phase[0] + stagger * delay.clamp(0.0, 1.0) * len;
+        Window::new(start, start + (1.0 - stagger) * len)
+    }
+
+    /// When the window opens.
+    pub(crate) fn start(self) -> f32 {
+        self.start
+    }
+
+    /// When the window closes.
+    pub(crate) fn end(self) -> f32 {
+        self.start + 1.0 / self.inv_len
+    }
+
+    /// Where `t` is in the window, clamped to [0, 1].
+    fn local(self, t: f32) -> f32 {
+        ((t - self.start) * self.inv_len).clamp(0.0, 1.0)
+    }
+}
+
+/// Constant acceleration over the first `a` of a window, constant speed,
+/// constant deceleration over the last `a`: C¹ for `a > 0`, exactly 0 at 0
+/// and 1 at 1.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Ease {
+    a: f32,
+    /// Top speed, `1 / (1 − a)`.
+    v: f32,
+}
+
+impl Ease {
+    pub(crate) fn new(a: f32) -> Ease {
+        Ease {
+            a,
+            v: 1.0 / (1.0 - a),
+        }
+    }
+
+    /// No easing: the identity.
+    const NONE: Ease = Ease { a: 0.0, v: 1.0 };
+
+    /// The eased position at `x ∈ [0, 1]`.
+    pub(crate) fn at(self, x: f32) -> f32 {
+        let (a, v) = (self.a, self.v);
+        if a == 0.0 {
+            x
+        } else if x < a {
+            0.5 * v * x * x / a
+        } else if x > 1.0 - a {
+            let y = 1.0 - x;
+            1.0 - 0.5 * v * y * y / a
+        } else {
+            v * (x - 0.5 * a)
+        }
+    }
+}
+
+/// A tip-first growing or wilting union chain's front.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Front {
+    /// Metres from its subtree's junction to the chain's base.
+    pub base: f32,
+    /// Metres the front travels over the window.
+    pub total: f32,
+    /// Growing (the front goes out) or wilting (it comes back).
+    pub grows: bool,
+}
+
+/// When one union chain moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct ChainTiming {
+    pub window: Window,
+    /// `Some` for tip-first growth and wilt.
+    pub front: Option<Front>,
+}
+
+/// How a union chain stands at some `t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum ChainState {
+    /// Interpolated with this weight.
+    Blend(f32),
+    /// Grown (or not yet retracted) this many metres from its junction.
+    Reach(f32),
+}
+
+/// When one leaf moves: its window's clock, then (unfolding with a front)
+/// its share of the clock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct LeafTiming {
+    pub window: Window,
+    /// Where on the clock the front reaches the leaf (0 without a front).
+    pub at: f32,
+    /// 1 / the clock's share over which it unfolds (1 without a front).
+    pub inv_unfold: f32,
+    /// It folds (wilts) rather than unfolds.
+    pub folds: bool,
+}
+
+/// The timing of every union chain and leaf of a plan.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Schedule {
+    pub ease: Ease,
+    /// The reshape phase: the root, the bark blend.
+    pub overall: Window,
+    pub chains: Vec<ChainTiming>,
+    pub leaves: Vec<LeafTiming>,
+    /// How `t` is paced (`None`: `t` itself).
+    pub pace: Option<Pace>,
+}
+
+/// Even pacing: the time at which the staged motion has covered an eased
+/// share of its total, so every frame moves about as far as the next
+/// (see *Pacing*).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Pace {
+    /// Share of the motion covered at `τ = i / (len − 1)`, increasing from
+    /// exactly 0 to exactly 1.
+    pub covered: Vec<f32>,
+    pub ease: Ease,
+}
+
+impl Pace {
+    /// The staged time `τ` at `t`.
+    fn at(&self, t: f32) -> f32 {
+        let m = self.ease.at(t.clamp(0.0, 1.0));
+        let c = &self.covered;
+        if m <= 0.0 {
+            return 0.0;
+        }
+        if m >= 1.0 {
+            return 1.0;
+        }
+        let i = (c.partition_point(|&x| x <= m) - 1).min(c.len() - 2);
+        let f = ((m - c[i]) / (c[i + 1] - c[i])).clamp(0.0, 1.0);
+        (i as f32 + f) / (c.len() - 1) as f32
+    }
+}
+
+impl Schedule {
+    /// Every weight `t`: the paper's clock, for `chains` union chains and
+    /// `leaves` leaves.
+    pub(crate) fn linear(chains: usize, leaves: usize) -> Schedule {
+        let chain = ChainTiming {
+            window: Window::FULL,
+            front: None,
+        };
+        let leaf = LeafTiming {
+            window: Window::FULL,
+            at: 0.0,
+            inv_unfold: 1.0,
+            folds: false,
+        };
+        Schedule {
+            ease: Ease::NONE,
+            overall: Window::FULL,
+            chains: vec![chain; chains],
+            leaves: vec![leaf; leaves],
+            pace: None,
+        }
+    }
+
+    /// The eased clock of `window` at `t`.
+    fn clock(&self, window: Window, t: f32) -> f32 {
+        let t = self.pace.as_ref().map_or(t, |p| p.at(t));
+        self.ease.at(window.local(t))
+    }
+
+    /// The clock of the reshape phase (root, bark).
+    pub(crate) fn overall(&self, t: f32) -> f32 {
+        self.clock(self.overall, t)
+    }
+
+    /// Union chain `i` at `t`.
+    pub(crate) fn chain(&self, i: usize, t: f32) -> ChainState {
+        let c = self.chains[i];
+        let clock = self.clock(c.window, t);
+        match c.front {
+            None => ChainState::Blend(clock),
+            Some(f) => {
+                let travelled = if f.grows { clock } else { 1.0 - clock };
+                ChainState::Reach(travelled * f.total - f.base)
+            }
+        }
+    }
+
+    /// Whether union chain `i` grows or wilts from its tip.
+    pub(crate) fn tip_first(&self, i: usize) -> bool {
+        self.chains[i].front.is_some()
+    }
+
+    /// The interpolation weight of union chain `i` at `t`: its blend
+    /// weight, or for tip-first chains how much of the front has passed.
+    pub(crate) fn chain_weight(&self, i: usize, t: f32) -> f32 {
+        let c = self.chains[i];
+        let clock = self.clock(c.window, t);
+        match c.front {
+            None => clock,
+            Some(f) => {
+                let path = (f.total / (1.0 + UNFOLD) - f.base).max(f32::MIN_POSITIVE);
+                let travelled = if f.grows { clock } else { 1.0 - clock };
+                let grown = ((travelled * f.total - f.base) / path).clamp(0.0, 1.0);
+                if f.grows { grown } else { 1.0 - grown }
+            }
+        }
+    }
+
+    /// The interpolation weight of leaf `i` at `t`.
+    pub(crate) fn leaf(&self, i: usize, t: f32) -> f32 {
+        let l = self.leaves[i];
+        let clock = self.clock(l.window, t);
+        if l.at == 0.0 && l.inv_unfold == 1.0 {
+            return clock;
+        }
+        // Behind a front the unfold is eased too: a linear ramp would
+        // start a big leaf's corners at full speed.
+        if l.folds {
+            1.0 - self
+                .ease
+                .at(((1.0 - clock - l.at) * l.inv_unfold).clamp(0.0, 1.0))
+        } else {
+            self.ease
+                .at(((clock - l.at) * l.inv_unfold).clamp(0.0, 1.0))
+        }
+    }
+}

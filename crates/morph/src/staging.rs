@@ -1,0 +1,295 @@
+//! Builds a plan's [`Schedule`] (see `schedule` for what it means): the
+//! phases, each reshaping chain's delay, and the fronts of growing and
+//! wilting subtrees.
+
+use crate::correspondence::{LeafMatch, Operation};
+use crate::metrics::leaf_corners;
+use crate::morpher::Morpher;
+use crate::morpher::{fraction, locate};
+use crate::options::{ScheduleKind, ScheduleOptions};
+use crate::plan::MorphPlan;
+use crate::plan::{ChainPlan, LeafMode, LeafPlan, Sample, UnionChain};
+use crate::schedule::{
+    ChainTiming, Ease, Front, GROW, LeafTiming, Pace, RESHAPE, SHED, Schedule, UNFOLD, Window,
+};
+use treemorph_tree::Frame;
+
+/// Instants at which a staged plan samples its motion to pace it.
+const PACE_SAMPLES: usize = 64;
+/// Share of the mean motion per sample every stretch keeps, however still.
+const PACE_FLOOR: f32 = 0.05;
+
+/// Paces a staged plan's motion evenly (see `schedule`, *Pacing*); `None`
+/// when nothing moves.
+pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
+    let mut morpher = Morpher::new(plan);
+    let mut frame = morpher.new_frame();
+    let mut previous = points(&frame);
+    let mut moved = Vec::with_capacity(PACE_SAMPLES);
+    for i in 1..=PACE_SAMPLES {
+        morpher.morph(i as f32 / PACE_SAMPLES as f32, &mut frame);
+        let now = points(&frame);
+        let d = now
+            .iter()
+            .zip(&previous)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0f32, f32::max);
+        moved.push(d);
+        previous = now;
+    }
+    let mean = moved.iter().sum::<f32>() / PACE_SAMPLES as f32;
+    if !(mean > 0.0 && mean.is_finite()) {
+        return None;
+    }
+    let mut covered = Vec::with_capacity(PACE_SAMPLES + 1);
+    covered.push(0.0f64);
+    for d in &moved {
+        let last = *covered.last().expect("one");
+        covered.push(last + f64::from(d + PACE_FLOOR * mean));
+    }
+    let total = *covered.last().expect("samples");
+    let mut covered: Vec<f32> = covered.iter().map(|c| (c / total) as f32).collect();
+    *covered.last_mut().expect("samples") = 1.0;
+    Some(Pace {
+        covered,
+        ease: Ease::new(easing),
+    })
+}
+
+/// Every node and leaf corner of a frame.
+fn points(frame: &Frame) -> Vec<glam::Vec3> {
+    let mut points = frame.positions.clone();
+    points.extend(frame.leaves.iter().flat_map(leaf_corners));
+    points
+}
+
+/// What [`schedule`] reads of a plan being built.
+pub(crate) struct Timed<'a> {
+    pub chain_plans: &'a [ChainPlan],
+    pub chains: &'a [UnionChain],
+    pub samples: &'a [Sample],
+    pub sample_u: &'a [f32],
+    pub sample_inv_span: &'a [f32],
+    pub leaf_plans: &'a [LeafPlan],
+    pub leaf_matches: &'a [LeafMatch],
+}
+
+/// The schedule `options` ask for.
+pub(crate) fn schedule(options: &ScheduleOptions, plan: &Timed) -> Schedule {
+    match options.kind {
+        ScheduleKind::Linear => Schedule::linear(plan.chain_plans.len(), plan.leaf_plans.len()),
+        ScheduleKind::Staged => staged(options, plan),
+    }
+}
+
+fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
+    let phases = Phases::of(plan);
+    let delays = delays(plan);
+    let fronts = fronts(plan);
+    let chains = plan
+        .chain_plans
+        .iter()
+        .enumerate()
+        .map(|(i, c)| match c.operation {
+            Operation::Grow => ChainTiming {
+                window: Window::new(GROW[0], GROW[1]),
+                front: Some(fronts.chain(i, true)),
+            },
+            Operation::Wilt => ChainTiming {
+                window: Window::new(SHED[0], SHED[1]),
+                front: Some(fronts.chain(i, false)),
+            },
+            _ => ChainTiming {
+                window: Window::staggered(phases.reshape, options.stagger, delays[i]),
+                front: None,
+            },
+        })
+        .collect::<Vec<_>>();
+    let leaves = plan
+        .leaf_plans
+        .iter()
+        .zip(plan.leaf_matches)
+        .map(|(l, m)| leaf_timing(plan, &chains, &fronts, &delays, options, l, m))
+        .collect();
+    Schedule {
+        ease: Ease::new(options.easing),
+        overall: Window::new(phases.reshape[0], phases.reshape[1]),
+        chains,
+        leaves,
+        pace: None,
+    }
+}
+
+/// The phases' windows for one plan.
+struct Phases {
+    reshape: [f32; 2],
+}
+
+impl Phases {
+    /// The reshape phase takes the time of an empty shed or growth phase.
+    fn of(plan: &Timed) -> Phases {
+        let ops = |op| plan.chain_plans.iter().any(|c| c.operation == op);
+        let sheds = ops(Operation::Wilt) || plan.leaf_matches.iter().any(|m| m.target.is_none());
+        let grows = ops(Operation::Grow) || plan.leaf_matches.iter().any(|m| m.source.is_none());
+        Phases {
+            reshape: [
+                if sheds { RESHAPE[0] } else { 0.0 },
+                if grows { RESHAPE[1] } else { 1.0 },
+            ],
+        }
+    }
+}
+
+/// Per union chain, its delay `d ∈ [0, 1]` within its phase:
+/// `(level + mean growth location) / levels`.
+fn delays(plan: &Timed) -> Vec<f32> {
+    let levels = plan.chains.iter().map(|c| c.level).max().unwrap_or(0) + 1;
+    plan.chains
+        .iter()
+        .zip(plan.chain_plans)
+        .map(|(c, cp)| {
+            let p = if c.parent.is_some() {
+                0.5 * (cp.p[0] + cp.p[1])
+            } else {
+                0.0
+            };
+            (c.level as f32 + p.clamp(0.0, 1.0)) / levels as f32
+        })
+        .collect()
+}
+
+/// The fronts of tip-first chains: per union chain, metres from its
+/// subtree's junction to its base (`base`), and per subtree root the
+/// longest base-to-tip path (`longest`). Growing subtrees measure target
+/// shapes, wilting ones source shapes.
+struct Fronts {
+    base: Vec<f32>,
+    root: Vec<u32>,
+    longest: Vec<f32>,
+}
+
+impl Fronts {
+    fn chain(&self, i: usize, grows: bool) -> Front {
+        Front {
+            base: self.base[i],
+            total: (1.0 + UNFOLD) * self.longest[self.root[i] as usize],
+            grows,
+        }
+    }
+
+    /// The front's position, on its clock, where it reaches union
+    /// parameter `param` of chain `i`, and the clock's share of an unfold.
+    fn leaf(&self, plan: &Timed, i: usize, side: usize, param: f32) -> (f32, f32) {
+        let longest = self.longest[self.root[i] as usize];
+        if longest <= 0.0 {
+            return (0.0, 1.0);
+        }
+        let total = (1.0 + UNFOLD) * longest;
+        let at = (self.base[i] + arc_length(plan, i, side, param)) / total;
+        (at, total / (UNFOLD * longest))
+    }
+}
+
+fn fronts(plan: &Timed) -> Fronts {
+    let n = plan.chain_plans.len();
+    let mut fronts = Fronts {
+        base: vec![0.0; n],
+        root: (0..n as u32).collect(),
+        longest: vec![0.0; n],
+    };
+    // Parents come first, so one pass sees every parent's base.
+    for (i, c) in plan.chain_plans.iter().enumerate() {
+        let side = match c.operation {
+            Operation::Grow => 1,
+            Operation::Wilt => 0,
+            _ => continue,
+        };
+        let parent = c.parent as usize;
+        if plan.chains[i].parent.is_some() && plan.chain_plans[parent].operation == c.operation {
+            fronts.base[i] = fronts.base[parent] + arc_length(plan, parent, side, c.p[side]);
+            fronts.root[i] = fronts.root[parent];
+        }
+        let tip = fronts.base[i] + arc_length(plan, i, side, 1.0);
+        let root = fronts.root[i] as usize;
+        fronts.longest[root] = fronts.longest[root].max(tip);
+    }
+    fronts
+}
+
+/// Metres along union chain `i`'s shape on `side` from its base to union
+/// parameter `param`.
+fn arc_length(plan: &Timed, i: usize, side: usize, param: f32) -> f32 {
+    let c = &plan.chain_plans[i];
+    let r = c.first as usize..(c.first + c.len) as usize;
+    let u = &plan.sample_u[r.clone()];
+    let samples = &plan.samples[r.clone()];
+    let j = locate(u, param);
+    let before: f32 = samples[..j].iter().map(|s| s.len[side]).sum();
+    before + fraction(u, &plan.sample_inv_span[r], j, param) * samples[j].len[side]
+}
+
+/// When leaf `l` (matched as `m`) moves: with its host's front on a
+/// tip-first chain, in the growth or shed phase when it grows or wilts on
+/// a reshaping chain, else with its host.
+#[allow(clippy::too_many_arguments)]
+fn leaf_timing(
+    plan: &Timed,
+    chains: &[ChainTiming],
+    fronts: &Fronts,
+    delays: &[f32],
+    options: &ScheduleOptions,
+    l: &LeafPlan,
+    m: &LeafMatch,
+) -> LeafTiming {
+    let host = l.host as usize;
+    let plain = |window| LeafTiming {
+        window,
+        at: 0.0,
+        inv_unfold: 1.0,
+        folds: false,
+    };
+    if l.mode == LeafMode::Linear {
+        return plain(Window::FULL);
+    }
+    let op = plan.chain_plans[host].operation;
+    match (op, m.source, m.target) {
+        (Operation::Grow | Operation::Wilt, ..) => {
+            let grows = op == Operation::Grow;
+            let side = usize::from(grows);
+            let (at, inv_unfold) = fronts.leaf(plan, host, side, l.param[side]);
+            LeafTiming {
+                window: chains[host].window,
+                at,
+                inv_unfold,
+                folds: !grows,
+            }
+        }
+        (_, None, _) => {
+            let window = Window::staggered(GROW, options.stagger, delays[host]);
+            plain(after(window, chains[host].window))
+        }
+        (_, _, None) => {
+            let window = Window::staggered(SHED, options.stagger, 1.0 - delays[host]);
+            plain(before(window, chains[host].window))
+        }
+        _ => plain(chains[host].window),
+    }
+}
+
+/// Shortest window a leaf unfolds or folds in when its host's reshape
+/// squeezes it.
+const LEAF_WINDOW: f32 = 0.1;
+
+/// `window`, starting no earlier than `host` ends: a leaf unfolds on the
+/// bark its twig will have, not inside a branch still thinning.
+pub(crate) fn after(window: Window, host: Window) -> Window {
+    let start = window.start().max(host.end()).min(1.0 - LEAF_WINDOW);
+    Window::new(start, window.end().max(start + LEAF_WINDOW).min(1.0))
+}
+
+/// `window`, ending no later than `host` starts: a leaf folds on the bark
+/// its twig had.
+pub(crate) fn before(window: Window, host: Window) -> Window {
+    let end = window.end().min(host.start()).max(LEAF_WINDOW);
+    Window::new(window.start().min(end - LEAF_WINDOW).max(0.0), end)
+}

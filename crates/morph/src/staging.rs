@@ -2,17 +2,17 @@
 //! phases, each reshaping chain's delay, and the fronts of growing and
 //! wilting subtrees.
 
+use glam::Vec3;
+use treemorph_tree::Frame;
+
 use crate::correspondence::{LeafMatch, Operation};
 use crate::metrics::leaf_corners;
-use crate::morpher::Morpher;
-use crate::morpher::{fraction, locate};
+use crate::morpher::{Morpher, fraction, locate};
 use crate::options::{ScheduleKind, ScheduleOptions};
-use crate::plan::MorphPlan;
-use crate::plan::{ChainPlan, LeafMode, LeafPlan, Sample, UnionChain};
+use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, Sample, UnionChain};
 use crate::schedule::{
     ChainTiming, Ease, Front, GROW, LeafTiming, Pace, RESHAPE, SHED, Schedule, UNFOLD, Window,
 };
-use treemorph_tree::Frame;
 
 /// Instants at which a staged plan samples its motion to pace it.
 const PACE_SAMPLES: usize = 64;
@@ -57,7 +57,7 @@ pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
 }
 
 /// Every node and leaf corner of a frame.
-fn points(frame: &Frame) -> Vec<glam::Vec3> {
+fn points(frame: &Frame) -> Vec<Vec3> {
     let mut points = frame.positions.clone();
     points.extend(frame.leaves.iter().flat_map(leaf_corners));
     points

@@ -34,7 +34,9 @@ pub enum JobRequest {
 impl<'de> Deserialize<'de> for JobRequest {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<JobRequest, D::Error> {
         use serde::de::Error;
-        let mut body = serde_json::Map::<String, serde_json::Value>::deserialize(d)?;
+        let serde_json::Value::Object(mut body) = Strict::deserialize(d)?.0 else {
+            return Err(D::Error::custom("a job request is a JSON object"));
+        };
         let kind = body
             .remove("kind")
             .ok_or_else(|| D::Error::missing_field("kind"))?;
@@ -47,6 +49,78 @@ impl<'de> Deserialize<'de> for JobRequest {
                 "`kind` must be \"morph\" or \"sketch\", got {kind}"
             ))),
         }
+    }
+}
+
+/// Any JSON value, refusing a key given twice in one object (as the
+/// derived readers do) at any depth: a job request is read into a value
+/// first, and a plain `serde_json::Value` keeps the last of duplicates.
+struct Strict(serde_json::Value);
+
+impl<'de> Deserialize<'de> for Strict {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Strict, D::Error> {
+        d.deserialize_any(StrictVisitor).map(Strict)
+    }
+}
+
+struct StrictVisitor;
+
+impl<'de> serde::de::Visitor<'de> for StrictVisitor {
+    type Value = serde_json::Value;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a JSON value")
+    }
+
+    fn visit_bool<E>(self, v: bool) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_i64<E>(self, v: i64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_u64<E>(self, v: u64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_f64<E>(self, v: f64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_str<E>(self, v: &str) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+
+    fn visit_unit<E>(self) -> Result<serde_json::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(
+        self,
+        mut seq: A,
+    ) -> Result<serde_json::Value, A::Error> {
+        let mut items = Vec::new();
+        while let Some(Strict(v)) = seq.next_element()? {
+            items.push(v);
+        }
+        Ok(serde_json::Value::Array(items))
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(
+        self,
+        mut map: A,
+    ) -> Result<serde_json::Value, A::Error> {
+        use serde::de::Error;
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            if out.contains_key(&key) {
+                return Err(A::Error::custom(format!("duplicate field `{key}`")));
+            }
+            let Strict(v) = map.next_value()?;
+            out.insert(key, v);
+        }
+        Ok(serde_json::Value::Object(out))
     }
 }
 
@@ -677,6 +751,31 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("matchin"), "{e}");
+    }
+
+    /// Regression: reading a job request through a JSON value once
+    /// accepted a key given twice, keeping the last, where the derived
+    /// reader refuses it.
+    #[test]
+    fn duplicate_keys_are_refused_at_any_depth() {
+        for body in [
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10, "frames": 11}"#,
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10, "options": {"stagger": 0.1, "stagger": 0.2}}"#,
+        ] {
+            let e = serde_json::from_str::<JobRequest>(body).unwrap_err();
+            assert!(e.to_string().contains("duplicate field"), "{e}");
+        }
+        let e = serde_json::from_str::<JobRequest>("[1]").unwrap_err();
+        assert!(e.to_string().contains("object"), "{e}");
+    }
+
+    #[test]
+    fn a_bad_value_is_named_by_its_path() {
+        let e = serde_json::from_str::<JobRequest>(
+            r#"{"kind": "morph", "source": "a", "target": "b", "frames": 10, "options": {"schedule": "eased"}}"#,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("options.schedule"), "{e}");
     }
 
     #[test]

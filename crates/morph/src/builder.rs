@@ -17,7 +17,7 @@ use crate::options::{LeafMorph, MorphOptions, ScheduleKind};
 use crate::plan::{
     ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NodeOrigin, Sample, UnionChain,
 };
-use crate::staging::{Timed, pace, schedule};
+use crate::staging::{Timed, pace, schedule, separate_copies};
 
 /// The chain data the plan reads, copied from the analysis in one
 /// sequential pass into concatenated arrays: the build visits chains in
@@ -591,7 +591,14 @@ impl MorphPlan {
         let heights = [tree_height(source), tree_height(target)];
         let source_input = Input::new(source, source_analysis, heights[0]);
         let target_input = Input::new(target, target_analysis, heights[1]);
-        let correspondence = correspond(&source_input, &target_input, options);
+        let mut correspondence = correspond(&source_input, &target_input, options);
+        // The random-leaf baseline keeps its copies: it is the paper's
+        // Figure 11 as published.
+        if options.schedule.kind == ScheduleKind::Staged
+            && options.leaf_morph == LeafMorph::OnChains
+        {
+            separate_copies(&mut correspondence.leaves);
+        }
         let mut plan = build(
             &source_input,
             &target_input,

@@ -212,7 +212,11 @@
 //! reshapes opens from (or closes into) a bud on the bark, after its twig
 //! has reshaped (before it starts): imported leaves often sit on their
 //! twig's axis, and opening there while the branch is still thick would
-//! bury them in the wood.
+//! bury them in the wood. Of the union leaves that share a source (or
+//! target) leaf, the first keeps it and the others grow in (or wilt) as
+//! leaves of their own: copies of one leaf would coincide at an end with
+//! different material pairs and z-fight as they blend (the random-leaf
+//! baseline keeps its copies).
 //!
 //! With [`LeafMorph::RandomLinear`] (the Figure 11 baseline) leaves are
 //! paired at random over the whole tree and their world anchors and
@@ -255,6 +259,9 @@
 //!   MTSW whatever the matching.
 //! - `max_jump`: the largest displacement of a node or a leaf quad's
 //!   corner since the previous measured frame, over the plan height.
+//! - `coincident_leaves`: visible leaves drawn on top of another (same
+//!   anchor, orientation and size to a millionth of the height) with a
+//!   different material pair.
 //! - `growth_out_of_order`, `growth_reversals`: growing and wilting chains
 //!   not growing from the tip (a segment grown beyond one short of its
 //!   full length), and growing chains that got shorter (wilting ones

@@ -39,6 +39,10 @@ pub struct FrameMetrics {
     /// Growing chains shorter, or wilting chains longer, than in the
     /// previous frame measured by the same [`FrameMeter`].
     pub growth_reversals: u32,
+    /// Visible leaves drawn on top of another with a different material
+    /// pair (same anchor, orientation and size): copies of one leaf that
+    /// z-fight as they blend.
+    pub coincident_leaves: u32,
     /// The plan's end-frame error (the same for every frame).
     pub endpoint_error: EndpointError,
 }
@@ -68,6 +72,44 @@ pub(crate) fn leaf_corners(leaf: &FrameLeaf) -> [Vec3; 4] {
     let up = leaf.orientation * Vec3::Y * leaf.height.max(0.0);
     let a = leaf.anchor;
     [a - across, a + across, a + across + up, a - across + up]
+}
+
+/// Visible leaves of `frame` that coincide with another of a different
+/// material pair: keyed by anchor, orientation and size rounded to a
+/// millionth of the height (copies of one leaf are computed alike, so
+/// they agree far closer than that).
+fn coincident_leaves(plan: &MorphPlan, frame: &Frame) -> u32 {
+    let scale = 1e6 / plan.height().max(f32::MIN_POSITIVE);
+    let q = |x: f32, s: f32| (x * s).round() as i64;
+    let mut keys: Vec<([i64; 9], [u32; 2])> = frame
+        .leaves
+        .iter()
+        .zip(&plan.topology().leaves)
+        .filter(|(l, _)| l.width > 0.0 && l.height > 0.0)
+        .map(|(l, t)| {
+            let (a, o) = (l.anchor, l.orientation);
+            let key = [
+                q(a.x, scale),
+                q(a.y, scale),
+                q(a.z, scale),
+                q(o.x, 1e5),
+                q(o.y, 1e5),
+                q(o.z, 1e5),
+                q(o.w, 1e5),
+                q(l.width, scale),
+                q(l.height, scale),
+            ];
+            (key, t.materials)
+        })
+        .collect();
+    keys.sort_unstable();
+    let mut count = 0u32;
+    for group in keys.chunk_by(|a, b| a.0 == b.0) {
+        if group.iter().any(|g| g.1 != group[0].1) {
+            count += group.len() as u32;
+        }
+    }
+    count
 }
 
 /// Volume over π of a frustum (a segment with linearly varying radius): it
@@ -293,6 +335,7 @@ impl<'p> FrameMeter<'p> {
             mtsw,
             max_jump,
             growth_out_of_order: growth.out_of_order,
+            coincident_leaves: coincident_leaves(plan, frame),
             growth_reversals: growth.reversals,
             endpoint_error: plan.endpoint_error(),
         })

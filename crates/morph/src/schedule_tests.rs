@@ -232,3 +232,51 @@ fn leaves_open_after_their_twig_has_reshaped_and_fold_before() {
     let clear = after(Window::new(0.8, 1.0), host);
     assert_eq!((clear.start(), clear.end()), (0.8, 1.0));
 }
+
+/// Copies of one leaf coincide at an end with different material pairs
+/// and z-fight as they blend: on the staged schedule one copy keeps the
+/// leaf and the others grow in (or wilt) as leaves of their own, so no
+/// two visible leaves coincide; the linear schedule keeps the copies.
+#[test]
+fn leaf_copies_do_not_coincide() {
+    let (a, b) = (tree(Preset::Maple, 1, 400), tree(Preset::Conifer, 2, 400));
+    let coincident = |schedule: ScheduleOptions| {
+        let options = MorphOptions::default().with_schedule(schedule);
+        let p = MorphPlan::new(&a.0, &a.1, &b.0, &b.1, &options).unwrap();
+        let mut meter = FrameMeter::new(&p, &MetricsOptions::default());
+        let worst = frames(&p, 20)
+            .iter()
+            .map(|f| meter.measure(f).unwrap().coincident_leaves)
+            .max()
+            .unwrap();
+        (p, worst)
+    };
+    let (staged, worst) = coincident(ScheduleOptions::default());
+    assert_eq!(worst, 0);
+    let mut sources = std::collections::HashSet::new();
+    let mut targets = std::collections::HashSet::new();
+    for m in staged.leaf_origins() {
+        assert!(
+            m.source.is_none_or(|s| sources.insert(s)),
+            "{m:?} shares its source"
+        );
+        assert!(
+            m.target.is_none_or(|t| targets.insert(t)),
+            "{m:?} shares its target"
+        );
+    }
+    assert_eq!(
+        sources.len(),
+        a.0.leaves().len(),
+        "every source leaf appears"
+    );
+    assert_eq!(
+        targets.len(),
+        b.0.leaves().len(),
+        "every target leaf appears"
+    );
+    assert!(
+        coincident(ScheduleOptions::linear()).1 > 0,
+        "linear keeps its copies"
+    );
+}

@@ -56,6 +56,41 @@ pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
     })
 }
 
+/// Staged: of the union leaves that share a source leaf (a leaf with
+/// several partners), the first keeps it and the others grow in as new
+/// leaves at their targets; of those that share a target, the first
+/// keeps it and the others wilt from their sources. Copies of one leaf
+/// would otherwise coincide at t = 0 (t = 1) with different material
+/// pairs and z-fight as they blend. Every leaf of both trees still
+/// appears at least once.
+pub(crate) fn separate_copies(leaves: &mut [LeafMatch]) {
+    let size = |side: fn(&LeafMatch) -> Option<u32>| {
+        leaves
+            .iter()
+            .filter_map(side)
+            .max()
+            .map_or(0, |m| m as usize + 1)
+    };
+    let mut seen = [
+        vec![false; size(|m| m.source)],
+        vec![false; size(|m| m.target)],
+    ];
+    for m in leaves.iter_mut() {
+        if let (Some(s), Some(_)) = (m.source, m.target)
+            && std::mem::replace(&mut seen[0][s as usize], true)
+        {
+            m.source = None;
+        }
+    }
+    for m in leaves.iter_mut() {
+        if let (Some(_), Some(t)) = (m.source, m.target)
+            && std::mem::replace(&mut seen[1][t as usize], true)
+        {
+            m.target = None;
+        }
+    }
+}
+
 /// Every node and leaf corner of a frame.
 fn points(frame: &Frame) -> Vec<Vec3> {
     let mut points = frame.positions.clone();

@@ -29,8 +29,10 @@
 //! motion, large where a schedule's window edges make the motion spike.
 //! `growth_out_of_order` per frame counts growing or wilting chains not
 //! growing from the tip, and `growth_reversals` those that shrank while
-//! growing (or grew while wilting); the summary carries the largest of
-//! each.
+//! growing (or grew while wilting); `coincident_leaves` per frame counts
+//! visible leaves drawn on top of another with a different material pair
+//! (copies of one leaf, which z-fight). The summary carries the largest
+//! of each.
 //!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
@@ -239,6 +241,7 @@ struct MorphSeries {
     max_jump: Vec<f32>,
     growth_out_of_order: Vec<u32>,
     growth_reversals: Vec<u32>,
+    coincident_leaves: Vec<u32>,
 }
 
 impl MorphSeries {
@@ -252,6 +255,7 @@ impl MorphSeries {
             max_jump: Vec::with_capacity(n),
             growth_out_of_order: Vec::with_capacity(n),
             growth_reversals: Vec::with_capacity(n),
+            coincident_leaves: Vec::with_capacity(n),
         }
     }
 
@@ -264,6 +268,7 @@ impl MorphSeries {
         self.max_jump.push(m.max_jump);
         self.growth_out_of_order.push(m.growth_out_of_order);
         self.growth_reversals.push(m.growth_reversals);
+        self.coincident_leaves.push(m.coincident_leaves);
     }
 
     /// `metrics.json` and the job's summary metrics.
@@ -274,6 +279,7 @@ impl MorphSeries {
             "jump_ratio": jump_ratio(&self.max_jump),
             "growth_out_of_order": max(&self.growth_out_of_order),
             "growth_reversals": max(&self.growth_reversals),
+            "coincident_leaves": max(&self.coincident_leaves),
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
         let mut metrics = json!({
@@ -287,6 +293,7 @@ impl MorphSeries {
             "jump_ratio": jump_ratio(&self.max_jump),
             "growth_out_of_order": self.growth_out_of_order,
             "growth_reversals": self.growth_reversals,
+            "coincident_leaves": self.coincident_leaves,
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
         self.written.write_into(&mut metrics, &mut summary);

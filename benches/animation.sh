@@ -18,12 +18,7 @@ SIZE=${SIZE:-5000}
 FRAMES=${FRAMES:-60}
 KINDS=${KINDS:-keyframes basis}
 ENCODINGS=${ENCODINGS:-float quantized meshopt}
-if [ -n "${TREEMORPH_BIN:-}" ]; then
-  BIN=$TREEMORPH_BIN
-else
-  cargo build --release -p treemorph --bin treemorph >&2
-  BIN=$PWD/target/release/treemorph
-fi
+. benches/bin.sh
 DIR=$(mktemp -d)
 trap 'rm -rf "$DIR"' EXIT
 "$BIN" generate --preset maple --seed 1 --size "$SIZE" -o "$DIR/a.json" >/dev/null 2>&1

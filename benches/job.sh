@@ -18,12 +18,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SIZE=${SIZE:-5000}
 FRAMES=${FRAMES:-60}
-if [ -n "${TREEMORPH_BIN:-}" ]; then
-  BIN=$TREEMORPH_BIN
-else
-  cargo build --release -p treemorph --bin treemorph >&2
-  BIN=$PWD/target/release/treemorph
-fi
+. benches/bin.sh
 DATA=$(mktemp -d)
 OUT=$(mktemp)
 trap 'kill $PID 2>/dev/null || true; wait $PID 2>/dev/null || true; rm -rf "$DATA" "$OUT"' EXIT

@@ -24,12 +24,7 @@ SIZE=${SIZE:-5000}
 FRAMES=${FRAMES:-60}
 SCHEDULES=${SCHEDULES:-linear staged}
 MATCHINGS=${MATCHINGS:-one-to-many one-to-one}
-if [ -n "${TREEMORPH_BIN:-}" ]; then
-  BIN=$TREEMORPH_BIN
-else
-  cargo build --release -p treemorph --bin treemorph >&2
-  BIN=$PWD/target/release/treemorph
-fi
+. benches/bin.sh
 DIR=$(mktemp -d)
 trap 'rm -rf "$DIR"' EXIT
 trees=("$@")

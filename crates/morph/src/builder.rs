@@ -1131,11 +1131,11 @@ struct LeafPlanner<'a> {
     /// Whether leaves move in straight lines (`LeafMorph::RandomLinear`)
     /// rather than ride on their chains.
     linear: bool,
-    /// Whether a leaf that grows or wilts on a chain that does not (a
-    /// staged schedule) opens from the bark as a bud: its offset starts
-    /// (or ends) no farther from the axis than the wood's radius there, so
-    /// a leaf just starting to unfold neither hangs off the bark nor hides
-    /// in the wood.
+    /// Whether a leaf that grows or wilts (a staged schedule) opens from
+    /// the bark as a bud: its offset starts (or ends) on the wood's radius
+    /// there, so a leaf just starting to unfold neither hangs off the bark
+    /// nor hides in the wood. On a chain growing from its tip the morpher
+    /// then scales the offset with the wood as it is at the time.
     buds: bool,
 }
 

@@ -118,7 +118,7 @@ pub(crate) fn schedule(options: &ScheduleOptions, plan: &Timed) -> Schedule {
 }
 
 fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
-    let phases = Phases::of(plan);
+    let reshape = reshape_phase(plan);
     let delays = delays(plan);
     let fronts = fronts(plan);
     let chains = plan
@@ -135,7 +135,7 @@ fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
                 front: Some(fronts.chain(i, false)),
             },
             _ => ChainTiming {
-                window: Window::staggered(phases.reshape, options.stagger, delays[i]),
+                window: Window::staggered(reshape, options.stagger, delays[i]),
                 front: None,
             },
         })
@@ -148,31 +148,23 @@ fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
         .collect();
     Schedule {
         ease: Ease::new(options.easing),
-        overall: Window::new(phases.reshape[0], phases.reshape[1]),
+        overall: Window::new(reshape[0], reshape[1]),
         chains,
         leaves,
         pace: None,
     }
 }
 
-/// The phases' windows for one plan.
-struct Phases {
-    reshape: [f32; 2],
-}
-
-impl Phases {
-    /// The reshape phase takes the time of an empty shed or growth phase.
-    fn of(plan: &Timed) -> Phases {
-        let ops = |op| plan.chain_plans.iter().any(|c| c.operation == op);
-        let sheds = ops(Operation::Wilt) || plan.leaf_matches.iter().any(|m| m.target.is_none());
-        let grows = ops(Operation::Grow) || plan.leaf_matches.iter().any(|m| m.source.is_none());
-        Phases {
-            reshape: [
-                if sheds { RESHAPE[0] } else { 0.0 },
-                if grows { RESHAPE[1] } else { 1.0 },
-            ],
-        }
-    }
+/// The reshape phase for one plan: it takes the time of an empty shed or
+/// growth phase.
+fn reshape_phase(plan: &Timed) -> [f32; 2] {
+    let ops = |op| plan.chain_plans.iter().any(|c| c.operation == op);
+    let sheds = ops(Operation::Wilt) || plan.leaf_matches.iter().any(|m| m.target.is_none());
+    let grows = ops(Operation::Grow) || plan.leaf_matches.iter().any(|m| m.source.is_none());
+    [
+        if sheds { RESHAPE[0] } else { 0.0 },
+        if grows { RESHAPE[1] } else { 1.0 },
+    ]
 }
 
 /// Per union chain, its delay `d ∈ [0, 1]` within its phase:

@@ -385,13 +385,14 @@ pub struct MorphJobOptions {
     pub easing: Option<f32>,
 }
 
-/// When the operations of a morph happen.
+/// When the operations of a morph or a sketch happen.
 #[derive(
     Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema, clap::ValueEnum,
 )]
 #[serde(rename_all = "snake_case")]
 pub enum ScheduleKind {
-    /// Shed, reshape, grow; parents lead; growth from the tip. Default.
+    /// Shed, reshape, (in a morph) grow; parents lead; growth from the
+    /// tip. Default.
     #[default]
     Staged,
     /// One clock for everything (the morph before schedules).
@@ -574,6 +575,24 @@ pub struct SketchJobOptions {
     /// `keyframes` (see the morph options).
     #[arg(long, value_enum, default_value_t)]
     pub animation: AnimationKind,
+    /// When each branch moves: `staged` (default; pruned branches wilt
+    /// first, then every branch turns toward its sketched pose, parents
+    /// before their twigs, each eased) or `linear` (every branch on one
+    /// clock over the whole animation). Either way branches turn about
+    /// their joints.
+    #[arg(long, value_enum, default_value_t)]
+    pub schedule: ScheduleKind,
+    /// `staged` only: how far the starts of the branches' windows spread,
+    /// as a fraction of the animation, 0 to 0.9 (default 0.3: the deepest
+    /// twigs start 30 % of it after the trunk).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(long)]
+    pub stagger: Option<f32>,
+    /// `staged` only: the fraction of each window spent accelerating, and
+    /// as much decelerating, 0 to 0.5 (default 0.25; 0 is constant speed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(long)]
+    pub easing: Option<f32>,
 }
 
 /// A job's life cycle: `queued` → `running` → `succeeded` | `failed` |

@@ -4,7 +4,7 @@ use glam::Vec3;
 use serde::Serialize;
 use treemorph_tree::frame::FrameMismatch;
 use treemorph_tree::geom::closest_on_segment;
-use treemorph_tree::{Frame, FrameLeaf};
+use treemorph_tree::{Frame, JumpMeter};
 
 use crate::correspondence::Operation;
 use crate::growth::GrowthMeter;
@@ -64,16 +64,6 @@ fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
     (best.0.sqrt(), best.1)
 }
 
-/// The corners of a leaf's quad as the output stage meshes it: the anchor
-/// at the middle of its base edge, `width` across and `height` up its
-/// orientation's x and y axes.
-pub(crate) fn leaf_corners(leaf: &FrameLeaf) -> [Vec3; 4] {
-    let across = leaf.orientation * Vec3::X * (0.5 * leaf.width.max(0.0));
-    let up = leaf.orientation * Vec3::Y * leaf.height.max(0.0);
-    let a = leaf.anchor;
-    [a - across, a + across, a + across + up, a - across + up]
-}
-
 /// Visible leaves of `frame` that coincide with another of a different
 /// material pair: keyed by anchor, orientation and size rounded to a
 /// millionth of the height (copies of one leaf are computed alike, so
@@ -125,8 +115,7 @@ fn frustum(ra: f64, rb: f64, len: f64) -> f64 {
 pub struct FrameMeter<'p> {
     plan: &'p MorphPlan,
     options: MetricsOptions,
-    previous: Vec<Vec3>,
-    has_previous: bool,
+    jumps: JumpMeter,
     growth: GrowthMeter,
     /// Children of each union chain, flattened (`child_offsets`).
     children: Vec<u32>,
@@ -260,8 +249,7 @@ impl<'p> FrameMeter<'p> {
         FrameMeter {
             plan,
             options: options.clone(),
-            previous: Vec::new(),
-            has_previous: false,
+            jumps: JumpMeter::default(),
             growth: GrowthMeter::new(plan),
             children,
             child_offsets: counts,
@@ -276,7 +264,7 @@ impl<'p> FrameMeter<'p> {
 
     /// Forgets the previous frame (the next `max_jump` is 0).
     pub fn reset(&mut self) {
-        self.has_previous = false;
+        self.jumps.reset();
         self.growth.reset();
     }
 
@@ -325,7 +313,7 @@ impl<'p> FrameMeter<'p> {
 
         let mtsw = self.mtsw(frame, t);
 
-        let max_jump = self.jump(frame) / height;
+        let max_jump = self.jumps.jump(frame) / height;
         let growth = self.growth.measure(plan, frame);
 
         Ok(FrameMetrics {
@@ -339,26 +327,6 @@ impl<'p> FrameMeter<'p> {
             growth_reversals: growth.reversals,
             endpoint_error: plan.endpoint_error(),
         })
-    }
-
-    /// The largest distance a node or a leaf quad's corner moved since the
-    /// previous frame (0 for the first), in metres; keeps this frame's.
-    fn jump(&mut self, frame: &Frame) -> f32 {
-        let pos = &frame.positions;
-        let corners = frame.leaves.iter().flat_map(leaf_corners);
-        let count = pos.len() + 4 * frame.leaves.len();
-        let mut max_jump = 0.0f32;
-        if self.has_previous && self.previous.len() == count {
-            for (p, q) in pos.iter().copied().chain(corners).zip(&self.previous) {
-                max_jump = max_jump.max(p.distance(*q));
-            }
-        }
-        self.previous.clear();
-        self.previous.extend(pos.iter().copied());
-        self.previous
-            .extend(frame.leaves.iter().flat_map(leaf_corners));
-        self.has_previous = true;
-        max_jump
     }
 
     /// §7's maximum main-trunk support weight (see the crate docs).

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::MorphError;
+pub use treemorph_tree::timing::{ScheduleKind, ScheduleOptions};
 
 /// Weights of the chain-group (BPTT node) cost, the morphing paper's Eq. 4.
 ///
@@ -144,61 +145,6 @@ pub enum LeafMorph {
     },
 }
 
-/// When the operations of a morph happen (see the crate docs, *Schedule*).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-#[non_exhaustive]
-pub enum ScheduleKind {
-    /// Every chain and leaf on one linear clock over all of [0, 1], growth
-    /// and wilt scaling about the junction: the morph before schedules.
-    Linear,
-    /// First shed, then reshape, then grow; parents lead their children;
-    /// growth extends from the tip and leaves unfold once their twig has
-    /// reached them (default).
-    #[default]
-    Staged,
-}
-
-/// How a [`ScheduleKind::Staged`] morph is timed; ignored by
-/// [`ScheduleKind::Linear`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-#[non_exhaustive]
-pub struct ScheduleOptions {
-    /// Linear (the morph before schedules) or staged (default).
-    pub kind: ScheduleKind,
-    /// How far the starts of one phase's windows spread, as a fraction of
-    /// the phase: 0 moves every chain together, 0.3 (default) starts the
-    /// deepest twigs 30 % of a phase after the trunk; each window lasts the
-    /// phase less the stagger. In [0, 0.9].
-    pub stagger: f32,
-    /// Fraction of each window spent accelerating, and as much
-    /// decelerating, at constant acceleration (default 0.25: C¹ at the
-    /// window ends, top speed 4/3 of the mean). 0 is constant speed, 0.5
-    /// accelerates for half the window. In [0, 0.5].
-    pub easing: f32,
-}
-
-impl Default for ScheduleOptions {
-    fn default() -> ScheduleOptions {
-        ScheduleOptions {
-            kind: ScheduleKind::Staged,
-            stagger: 0.3,
-            easing: 0.25,
-        }
-    }
-}
-
-impl ScheduleOptions {
-    /// The linear clock of the morph before schedules.
-    pub fn linear() -> ScheduleOptions {
-        ScheduleOptions {
-            kind: ScheduleKind::Linear,
-            ..ScheduleOptions::default()
-        }
-    }
-}
-
 /// What [`MorphPlan::new`](crate::MorphPlan::new) builds. Every default is
 /// the paper's method; the baselines are options. Deserialises from JSON
 /// with every field optional (e.g. `{"chain_matching": "one_to_one"}`);
@@ -297,17 +243,8 @@ impl MorphOptions {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), MorphError> {
-        let s = &self.schedule;
-        for (option, v, max) in [
-            ("schedule.stagger", s.stagger, 0.9),
-            ("schedule.easing", s.easing, 0.5),
-        ] {
-            if !(v.is_finite() && (0.0..=max).contains(&v)) {
-                return Err(MorphError::InvalidOption {
-                    option,
-                    reason: format!("must be a number in [0, {max}], got {v}"),
-                });
-            }
+        if let Some((option, reason)) = self.schedule.invalid_field() {
+            return Err(MorphError::InvalidOption { option, reason });
         }
         let g = &self.group_weights;
         let c = &self.chain_weights;

@@ -62,98 +62,13 @@
 //!
 //! Bark textures and the root follow the reshape phase's clock.
 
-/// The shed phase: wilting chains and leaves.
-pub(crate) const SHED: [f32; 2] = [0.0, 0.45];
-/// The reshape phase: matched chains (also bark and root).
-pub(crate) const RESHAPE: [f32; 2] = [0.1, 0.9];
+use treemorph_tree::timing::{Ease, Pace, Window};
+
 /// The growth phase: growing chains and leaves.
 pub(crate) const GROW: [f32; 2] = [0.55, 1.0];
 /// How far the front travels while a leaf unfolds, as a fraction of its
 /// subtree's longest base-to-tip path.
 pub(crate) const UNFOLD: f32 = 0.25;
-
-/// A window of `t`, stored as its start and inverse length.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Window {
-    start: f32,
-    inv_len: f32,
-}
-
-impl Window {
-    /// All of [0, 1].
-    pub(crate) const FULL: Window = Window {
-        start: 0.0,
-        inv_len: 1.0,
-    };
-
-    /// `[start, end]`, `end > start`.
-    pub(crate) fn new(start: f32, end: f32) -> Window {
-        Window {
-            start,
-            inv_len: 1.0 / (end - start),
-        }
-    }
-
-    /// A window starting `delay` (a fraction) into `phase` and lasting the
-    /// phase's `1 − stagger`.
-    pub(crate) fn staggered(phase: [f32; 2], stagger: f32, delay: f32) -> Window {
-        let len = phase[1] - phase[0];
-        let start = phase[0] + stagger * delay.clamp(0.0, 1.0) * len;
-        Window::new(start, start + (1.0 - stagger) * len)
-    }
-
-    /// When the window opens.
-    pub(crate) fn start(self) -> f32 {
-        self.start
-    }
-
-    /// When the window closes.
-    pub(crate) fn end(self) -> f32 {
-        self.start + 1.0 / self.inv_len
-    }
-
-    /// Where `t` is in the window, clamped to [0, 1].
-    fn local(self, t: f32) -> f32 {
-        ((t - self.start) * self.inv_len).clamp(0.0, 1.0)
-    }
-}
-
-/// Constant acceleration over the first `a` of a window, constant speed,
-/// constant deceleration over the last `a`: C¹ for `a > 0`, exactly 0 at 0
-/// and 1 at 1.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Ease {
-    a: f32,
-    /// Top speed, `1 / (1 − a)`.
-    v: f32,
-}
-
-impl Ease {
-    pub(crate) fn new(a: f32) -> Ease {
-        Ease {
-            a,
-            v: 1.0 / (1.0 - a),
-        }
-    }
-
-    /// No easing: the identity.
-    const NONE: Ease = Ease { a: 0.0, v: 1.0 };
-
-    /// The eased position at `x ∈ [0, 1]`.
-    pub(crate) fn at(self, x: f32) -> f32 {
-        let (a, v) = (self.a, self.v);
-        if a == 0.0 {
-            x
-        } else if x < a {
-            0.5 * v * x * x / a
-        } else if x > 1.0 - a {
-            let y = 1.0 - x;
-            1.0 - 0.5 * v * y * y / a
-        } else {
-            v * (x - 0.5 * a)
-        }
-    }
-}
 
 /// A tip-first growing or wilting union chain's front.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -206,34 +121,6 @@ pub(crate) struct Schedule {
     pub leaves: Vec<LeafTiming>,
     /// How `t` is paced (`None`: `t` itself).
     pub pace: Option<Pace>,
-}
-
-/// Even pacing: the time at which the staged motion has covered an eased
-/// share of its total, so every frame moves about as far as the next
-/// (see *Pacing*).
-#[derive(Clone, Debug, PartialEq)]
-pub(crate) struct Pace {
-    /// Share of the motion covered at `τ = i / (len − 1)`, increasing from
-    /// exactly 0 to exactly 1.
-    pub covered: Vec<f32>,
-    pub ease: Ease,
-}
-
-impl Pace {
-    /// The staged time `τ` at `t`.
-    fn at(&self, t: f32) -> f32 {
-        let m = self.ease.at(t.clamp(0.0, 1.0));
-        let c = &self.covered;
-        if m <= 0.0 {
-            return 0.0;
-        }
-        if m >= 1.0 {
-            return 1.0;
-        }
-        let i = (c.partition_point(|&x| x <= m) - 1).min(c.len() - 2);
-        let f = ((m - c[i]) / (c[i + 1] - c[i])).clamp(0.0, 1.0);
-        (i as f32 + f) / (c.len() - 1) as f32
-    }
 }
 
 impl Schedule {

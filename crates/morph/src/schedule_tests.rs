@@ -5,8 +5,8 @@ use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_generate::{GenerateOptions, Preset, generate};
 use treemorph_tree::{Frame, Tree};
 
-use crate::schedule::{Ease, Window};
 use crate::*;
+use treemorph_tree::timing::{Ease, Window};
 
 fn tree(preset: Preset, seed: u64, size: u32) -> (Tree, Analysis) {
     let t = generate(&GenerateOptions::new(preset, seed).with_size(size)).unwrap();

@@ -2,58 +2,18 @@
 //! phases, each reshaping chain's delay, and the fronts of growing and
 //! wilting subtrees.
 
-use glam::Vec3;
-use treemorph_tree::Frame;
-
 use crate::correspondence::{LeafMatch, Operation};
-use crate::metrics::leaf_corners;
 use crate::morpher::{Morpher, fraction, locate};
 use crate::options::{ScheduleKind, ScheduleOptions};
 use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, Sample, UnionChain};
-use crate::schedule::{
-    ChainTiming, Ease, Front, GROW, LeafTiming, Pace, RESHAPE, SHED, Schedule, UNFOLD, Window,
-};
-
-/// Instants at which a staged plan samples its motion to pace it.
-const PACE_SAMPLES: usize = 64;
-/// Share of the mean motion per sample every stretch keeps, however still.
-const PACE_FLOOR: f32 = 0.05;
+use crate::schedule::{ChainTiming, Front, GROW, LeafTiming, Schedule, UNFOLD};
+use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 
 /// Paces a staged plan's motion evenly (see `schedule`, *Pacing*); `None`
 /// when nothing moves.
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
     let mut morpher = Morpher::new(plan);
-    let mut frame = morpher.new_frame();
-    let mut previous = points(&frame);
-    let mut moved = Vec::with_capacity(PACE_SAMPLES);
-    for i in 1..=PACE_SAMPLES {
-        morpher.morph(i as f32 / PACE_SAMPLES as f32, &mut frame);
-        let now = points(&frame);
-        let d = now
-            .iter()
-            .zip(&previous)
-            .map(|(a, b)| a.distance(*b))
-            .fold(0.0f32, f32::max);
-        moved.push(d);
-        previous = now;
-    }
-    let mean = moved.iter().sum::<f32>() / PACE_SAMPLES as f32;
-    if !(mean > 0.0 && mean.is_finite()) {
-        return None;
-    }
-    let mut covered = Vec::with_capacity(PACE_SAMPLES + 1);
-    covered.push(0.0f64);
-    for d in &moved {
-        let last = *covered.last().expect("one");
-        covered.push(last + f64::from(d + PACE_FLOOR * mean));
-    }
-    let total = *covered.last().expect("samples");
-    let mut covered: Vec<f32> = covered.iter().map(|c| (c / total) as f32).collect();
-    *covered.last_mut().expect("samples") = 1.0;
-    Some(Pace {
-        covered,
-        ease: Ease::new(easing),
-    })
+    Pace::measure(easing, |t, frame| morpher.morph(t, frame))
 }
 
 /// Staged: of the union leaves that share a source leaf (a leaf with
@@ -89,13 +49,6 @@ pub(crate) fn separate_copies(leaves: &mut [LeafMatch]) {
             m.target = None;
         }
     }
-}
-
-/// Every node and leaf corner of a frame.
-fn points(frame: &Frame) -> Vec<Vec3> {
-    let mut points = frame.positions.clone();
-    points.extend(frame.leaves.iter().flat_map(leaf_corners));
-    points
 }
 
 /// What [`schedule`] reads of a plan being built.

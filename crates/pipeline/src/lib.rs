@@ -234,7 +234,9 @@ pub trait Runner: Send + Sync + 'static {
 /// - 1: the first plan-first jobs.
 /// - 2: `animation.glb` is a motion basis by default (`options.animation`).
 /// - 3: morphs are staged by default (`options.schedule`).
-pub const RENDER_VERSION: u32 = 3;
+/// - 4: sketches turn about their joints and are staged by default;
+///   their `metrics.json` has `max_jump` and `jump_ratio`.
+pub const RENDER_VERSION: u32 = 4;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

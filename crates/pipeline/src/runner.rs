@@ -22,12 +22,12 @@
 //! crown flattened into a slab facing the camera shows as a falling
 //! ratio). The summary carries `max_stretch` and `max_growth`.
 //!
-//! # How a morph moves, in `metrics.json`
+//! # How a morph or a sketch moves, in `metrics.json`
 //! `max_jump` per frame (the farthest a node or leaf corner moved since
 //! the previous frame, over the height) and `jump_ratio`, the largest of
 //! those over the median (frames after the first): near 1 for even
 //! motion, large where a schedule's window edges make the motion spike.
-//! `growth_out_of_order` per frame counts growing or wilting chains not
+//! A morph's `growth_out_of_order` per frame counts growing or wilting chains not
 //! growing from the tip, and `growth_reversals` those that shrank while
 //! growing (or grew while wilting); `coincident_leaves` per frame counts
 //! visible leaves drawn on top of another with a different material pair
@@ -56,7 +56,7 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
-use treemorph_tree::{Aabb, Frame, FrameTopology};
+use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
 use treemorph_verify::{MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::{
@@ -329,12 +329,12 @@ fn run_sketch(
     let plan = plan_sketch(spec, input, analysis)?;
     let mut sketcher = Sketcher::new(&plan);
     let mut meter = SketchMetrics::new(&plan);
-    let mut series = SketchSeries::with_capacity(spec.render.frames as usize);
+    let mut series = SketchSeries::with_capacity(spec.render.frames as usize, plan.height());
     let outcome = render(
         plan.topology(),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
-        |frame, written| series.push(meter.measure(frame), written),
+        |frame, written| series.push(meter.measure(frame), frame, written),
         sink,
     )?;
     let (metrics, summary) = if spec.render.measured {
@@ -352,6 +352,10 @@ struct SketchSeries {
     frechet: Vec<f32>,
     stretch: Vec<f32>,
     growth: Vec<f32>,
+    /// The tree's height (jumps are fractions of it).
+    height: f32,
+    jumps: JumpMeter,
+    max_jump: Vec<f32>,
     first_depth_width: Option<f32>,
     written: WrittenSeries,
     constructed_floating_branches: Vec<usize>,
@@ -360,11 +364,14 @@ struct SketchSeries {
 }
 
 impl SketchSeries {
-    fn with_capacity(n: usize) -> SketchSeries {
+    fn with_capacity(n: usize, height: f32) -> SketchSeries {
         SketchSeries {
+            height: height.max(f32::MIN_POSITIVE),
             frechet: Vec::with_capacity(n),
             stretch: Vec::with_capacity(n),
             growth: Vec::with_capacity(n),
+            jumps: JumpMeter::default(),
+            max_jump: Vec::with_capacity(n),
             first_depth_width: None,
             written: WrittenSeries::with_capacity(n),
             constructed_floating_branches: Vec::with_capacity(n),
@@ -373,8 +380,9 @@ impl SketchSeries {
         }
     }
 
-    fn push(&mut self, m: treemorph_sketch::FrameMetrics, written: &Report) {
+    fn push(&mut self, m: treemorph_sketch::FrameMetrics, frame: &Frame, written: &Report) {
         self.frechet.push(m.frechet_normalised);
+        self.max_jump.push(self.jumps.jump(frame) / self.height);
         self.stretch.push(m.max_stretch);
         self.growth.push(m.max_growth);
         self.first_depth_width.get_or_insert(m.crown_depth_width);
@@ -396,6 +404,7 @@ impl SketchSeries {
             "final_frechet": last.frechet_normalised,
             "max_stretch": max_stretch,
             "max_growth": max_growth,
+            "jump_ratio": jump_ratio(&self.max_jump),
         });
         let mut metrics = json!({
             "kind": "sketch",
@@ -407,6 +416,8 @@ impl SketchSeries {
             "max_stretch": max_stretch,
             "growth": self.growth,
             "max_growth": max_growth,
+            "max_jump": self.max_jump,
+            "jump_ratio": jump_ratio(&self.max_jump),
             "crown_depth_width_before": before,
             "crown_depth_width_after": last.crown_depth_width,
             "constructed_floating_branches": self.constructed_floating_branches,

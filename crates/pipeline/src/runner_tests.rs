@@ -182,9 +182,7 @@ fn heart_request(frames: u32) -> JobRequest {
         options: SketchJobOptions {
             method: SketchMethod::Multiscale,
             fit: Some(SketchFit::Crown),
-            keyframes: None,
-            animation_encoding: Default::default(),
-            animation: Default::default(),
+            ..SketchJobOptions::default()
         },
         outputs: Outputs::default(),
         callback_url: None,

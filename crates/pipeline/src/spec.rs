@@ -23,6 +23,7 @@ use treemorph_gltf::basis::AnimationKind;
 use treemorph_morph::{ChainMatching, LeafMorph, MorphError, MorphOptions};
 use treemorph_sketch::{Fit, Method, Sketch, SketchError, SketchOptions, View};
 use treemorph_tree::glam::{Vec2, Vec3};
+use treemorph_tree::timing::ScheduleOptions;
 
 /// Fewest frames a job may ask for: both ends of the animation.
 pub const MIN_FRAMES: u32 = 2;
@@ -81,6 +82,14 @@ pub enum SpecError {
     /// The morph options do not validate.
     #[error("options: {0}")]
     MorphOptions(MorphError),
+    /// A sketch's `stagger` or `easing` is out of range.
+    #[error("options: invalid sketch option `{option}`: {reason}")]
+    Schedule {
+        /// The option's field path (e.g. `schedule.stagger`).
+        option: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// The camera, the polyline or the sketch options do not validate.
     #[error(transparent)]
     Sketch(SketchError),
@@ -242,17 +251,25 @@ pub fn morph_options(o: &MorphJobOptions) -> MorphOptions {
     if let Some(slow_down) = o.slow_down {
         options = options.with_slow_down(slow_down);
     }
-    options.schedule.kind = match o.schedule {
-        ScheduleKind::Staged => treemorph_morph::ScheduleKind::Staged,
-        ScheduleKind::Linear => treemorph_morph::ScheduleKind::Linear,
-    };
-    if let Some(stagger) = o.stagger {
-        options.schedule.stagger = stagger;
-    }
-    if let Some(easing) = o.easing {
-        options.schedule.easing = easing;
-    }
+    options.schedule = schedule(o.schedule, o.stagger, o.easing);
     options
+}
+
+/// The schedule options for the wire's `schedule`, `stagger` and
+/// `easing` (a morph's and a sketch's alike).
+fn schedule(kind: ScheduleKind, stagger: Option<f32>, easing: Option<f32>) -> ScheduleOptions {
+    let mut schedule = ScheduleOptions::default();
+    schedule.kind = match kind {
+        ScheduleKind::Staged => treemorph_tree::timing::ScheduleKind::Staged,
+        ScheduleKind::Linear => treemorph_tree::timing::ScheduleKind::Linear,
+    };
+    if let Some(stagger) = stagger {
+        schedule.stagger = stagger;
+    }
+    if let Some(easing) = easing {
+        schedule.easing = easing;
+    }
+    schedule
 }
 
 fn chain_matching(m: Matching) -> ChainMatching {
@@ -285,6 +302,9 @@ fn sketch_spec(r: &SketchRequest, render: RenderSpec) -> Result<SketchSpec, Spec
     };
     sketch.validate().map_err(SpecError::Sketch)?;
     let options = sketch_options(&r.options);
+    if let Some((option, reason)) = options.schedule.invalid_field() {
+        return Err(SpecError::Schedule { option, reason });
+    }
     options.validate().map_err(SpecError::Sketch)?;
     Ok(SketchSpec {
         tree: r.tree.clone(),
@@ -332,7 +352,10 @@ pub fn sketch_options(o: &SketchJobOptions) -> SketchOptions {
         Some(SketchFit::Crown) => Fit::Crown,
         None => Fit::None,
     };
-    SketchOptions::default().with_method(method).with_fit(fit)
+    SketchOptions::default()
+        .with_method(method)
+        .with_fit(fit)
+        .with_schedule(schedule(o.schedule, o.stagger, o.easing))
 }
 
 fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, SpecError> {

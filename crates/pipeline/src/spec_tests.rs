@@ -180,3 +180,29 @@ fn the_schedule_reaches_the_morph_options() {
         assert!(err.to_string().contains(option), "{err}");
     }
 }
+
+#[test]
+fn the_schedule_reaches_the_sketch_options() {
+    use treemorph_api::jobs::{ScheduleKind, SketchJobOptions};
+    let default = sketch_options(&SketchJobOptions::default()).schedule;
+    assert_eq!(default, treemorph_tree::timing::ScheduleOptions::default());
+    let got = sketch_options(&SketchJobOptions {
+        schedule: ScheduleKind::Linear,
+        stagger: Some(0.2),
+        easing: Some(0.0),
+        ..SketchJobOptions::default()
+    })
+    .schedule;
+    assert_eq!(got.kind, treemorph_tree::timing::ScheduleKind::Linear);
+    assert_eq!((got.stagger, got.easing), (0.2, 0.0));
+    for (stagger, easing, option) in [(Some(0.95), None, "stagger"), (None, Some(-0.1), "easing")] {
+        let JobRequest::Sketch(mut request) = sketch(wire_view(&View::front(10.0))) else {
+            unreachable!()
+        };
+        request.options.stagger = stagger;
+        request.options.easing = easing;
+        let err = JobSpec::parse(&JobRequest::Sketch(request), &Limits::default()).unwrap_err();
+        assert_eq!(err.error_code(), ErrorCode::InvalidJob);
+        assert!(err.to_string().contains(option), "{err}");
+    }
+}

@@ -221,6 +221,7 @@
 //! little more closely.
 
 mod adapt;
+mod arcs;
 mod correspondence;
 mod depth;
 mod error;
@@ -250,4 +251,5 @@ pub use options::{Method, SketchOptions};
 pub use plan::SketchPlan;
 pub use sketch::{Fit, Sketch, SketchFile, parse_sketch_file};
 pub use sketcher::Sketcher;
+pub use treemorph_tree::timing::{ScheduleKind, ScheduleOptions};
 pub use view::{Camera, View};

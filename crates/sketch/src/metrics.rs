@@ -31,10 +31,14 @@
 //!   whose tip must reach 1.5 × as far). `max |g − 1|` over chains that
 //!   do not wilt (a wilting subtree shrinks on purpose, so it is exempt
 //!   and counted apart by the plan).
-//! - **stretch**: `max |len / (g × rest) − 1|` over those chains' segments:
-//!   how far a segment grew or shrank beyond its chain's growth. Bending
-//!   rotates segments at their joints and leaves this near 0; a solve that
-//!   pulls one segment and squeezes its neighbour shows here.
+//! - **stretch**: `max |len / (λ × rest) − 1|` over those chains'
+//!   segments, `λ` the chain's arc length now over at rest: how far a
+//!   segment grew or shrank beyond its chain as a whole. Bending rotates
+//!   segments at their joints and leaves this near 0; a solve that pulls
+//!   one segment and squeezes its neighbour shows here. (Measured against
+//!   `g` instead, a chain curved at rest and straight mid-animation showed
+//!   23 % stretch with every segment at its rest length: the chord is the
+//!   growth the sketch asks at the end, not a length.)
 //! - **crown depth/width**: the visible leaf anchors' 5–95th-percentile
 //!   extent along the view direction over that along the camera's right
 //!   axis. Compared before and after a job it shows a crown flattened into
@@ -46,7 +50,8 @@
 //!   its parent chain's polyline plus the radius there (a root chain: from
 //!   the root node);
 //! - a **floating leaf**: an anchor farther from the polyline of the chain
-//!   it grows on than the leaf's rest offset + ε.
+//!   it grows on than the leaf's rest offset (moved with its branch's
+//!   radius change, as the sketcher moves it) + ε.
 //!
 //! ε is 10⁻⁴ × the tree's height.
 
@@ -60,6 +65,7 @@ use crate::frechet::discrete_frechet_with;
 use crate::plan::SketchPlan;
 use crate::polygon;
 use crate::rigid::growth;
+use crate::sketcher::on_bark;
 
 /// Samples per curve for the Fréchet distance.
 const SAMPLES: usize = 128;
@@ -166,13 +172,13 @@ impl<'p> SketchMetrics<'p> {
         }
     }
 
-    /// `max |len / (g × rest) − 1|` over the frame's branch segments, `g`
-    /// the growth of the segment's chain ([`SketchMetrics::growth`]): how
-    /// far a segment stretched beyond the growth the sketch asks of its
-    /// chain. Chains that wilt are skipped: wilting subtrees shrink to
-    /// nothing on purpose ([`SketchPlan::wilting_nodes`] says which).
-    /// Segments shorter than 10⁻⁶ × the tree height at rest are skipped.
-    /// 0 for a frame of another topology.
+    /// `max |len / (λ × rest) − 1|` over the frame's branch segments, `λ`
+    /// the arc length of the segment's chain now over at rest: how far a
+    /// segment stretched beyond its chain as a whole (bending at the
+    /// joints leaves it near 0). Chains that wilt are skipped: wilting
+    /// subtrees shrink to nothing on purpose ([`SketchPlan::wilting_nodes`]
+    /// says which). Segments shorter than 10⁻⁶ × the tree height at rest
+    /// are skipped. 0 for a frame of another topology.
     pub fn stretch(&self, frame: &Frame) -> f32 {
         self.stretch_and_growth(frame).0
     }
@@ -192,9 +198,7 @@ impl<'p> SketchMetrics<'p> {
     fn stretch_and_growth(&self, frame: &Frame) -> (f32, f32) {
         self.chain_lengths(frame)
             .fold((0.0f32, 0.0f32), |(stretch, growth), (g, segments)| {
-                let worst = segments
-                    .map(|(rest, len)| (len / (g * rest) - 1.0).abs())
-                    .fold(stretch, f32::max);
+                let worst = stretch.max(segment_stretch(segments));
                 (worst, growth.max((g - 1.0).abs()))
             })
     }
@@ -205,7 +209,7 @@ impl<'p> SketchMetrics<'p> {
     fn chain_lengths<'a>(
         &'a self,
         frame: &'a Frame,
-    ) -> impl Iterator<Item = (f32, impl Iterator<Item = (f32, f32)> + 'a)> + 'a {
+    ) -> impl Iterator<Item = (f32, impl Iterator<Item = (f32, f32)> + Clone + 'a)> + 'a {
         let plan = self.plan;
         let rest = &plan.rest.positions;
         let at = &frame.positions;
@@ -347,7 +351,10 @@ impl<'p> SketchMetrics<'p> {
         let mut leaves = 0;
         for (l, leaf) in frame.leaves.iter().enumerate() {
             let (d, _) = to_polyline(leaf.anchor, chain(plan.leaf_chain[l]), pos, &frame.radii);
-            leaves += usize::from(d.is_nan() || d > plan.leaf_offset[l].length() + eps);
+            let node = plan.topology.leaves[l].node as usize;
+            let dr = frame.radii[node] - plan.rest.radii[node];
+            let offset = on_bark(plan.leaf_offset[l], dr).length();
+            leaves += usize::from(d.is_nan() || d > offset + eps);
         }
         (branches, leaves)
     }
@@ -833,9 +840,39 @@ fn closed_frechet(outline: &[Vec2], reference: &[Vec2], row: &mut Vec<f32>) -> f
     result
 }
 
+/// `max |len / (λ × rest) − 1|` over one chain's (rest, now) segment
+/// lengths, `λ` their sum now over at rest (0 for a chain of no length).
+fn segment_stretch(segments: impl Iterator<Item = (f32, f32)> + Clone) -> f32 {
+    let (rest, now) = segments
+        .clone()
+        .fold((0.0f32, 0.0f32), |(r, n), (a, b)| (r + a, n + b));
+    if rest <= 0.0 || now <= 0.0 {
+        return 0.0;
+    }
+    let lambda = now / rest;
+    segments
+        .map(|(rest, len)| (len / (lambda * rest) - 1.0).abs())
+        .fold(0.0, f32::max)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: measured against the chord's growth, a chain bending
+    /// mid-animation with every segment at its rest length showed 23 %
+    /// stretch. Against the chain's own arc, bending is no stretch and one
+    /// segment pulled while its neighbour squeezes is.
+    #[test]
+    fn stretch_is_beyond_the_chains_own_growth() {
+        let bent = [(1.0, 1.0), (2.0, 2.0), (1.0, 1.0)];
+        assert_eq!(segment_stretch(bent.into_iter()), 0.0);
+        let grown = [(1.0, 1.5), (2.0, 3.0)];
+        assert!(segment_stretch(grown.into_iter()) < 1e-6);
+        let pulled = [(1.0, 1.5), (1.0, 0.5)];
+        assert!((segment_stretch(pulled.into_iter()) - 0.5).abs() < 1e-6);
+        assert_eq!(segment_stretch([(0.0, 0.0)].into_iter()), 0.0);
+    }
 
     #[test]
     fn edt_matches_brute_force() {

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use treemorph_tree::timing::ScheduleOptions;
+
 use crate::error::SketchError;
 use crate::sketch::Fit;
 
@@ -80,6 +82,10 @@ pub struct SketchOptions {
     /// blades into the foliage's outline, as a fraction of the crown's
     /// screen diagonal (default 0.03).
     pub closing_radius: f32,
+    /// When each chain moves (default staged: pruned subtrees wilt
+    /// first, parents lead their twigs, each eased; see the `time`
+    /// module). `linear` runs every chain on `t` itself.
+    pub schedule: ScheduleOptions,
 }
 
 impl Default for SketchOptions {
@@ -100,6 +106,7 @@ impl Default for SketchOptions {
             open_snap_distance: 0.15,
             raster_size: 256,
             closing_radius: 0.03,
+            schedule: ScheduleOptions::default(),
         }
     }
 }
@@ -115,8 +122,16 @@ impl SketchOptions {
         SketchOptions { fit, ..self }
     }
 
+    /// Options with another schedule.
+    pub fn with_schedule(self, schedule: ScheduleOptions) -> SketchOptions {
+        SketchOptions { schedule, ..self }
+    }
+
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), SketchError> {
+        if let Some((option, reason)) = self.schedule.invalid_field() {
+            return Err(SketchError::InvalidOption { option, reason });
+        }
         let fractions = [
             ("node_weight", self.node_weight, 0.0, 1000.0),
             ("coverage_threshold", self.coverage_threshold, 0.0, 1.0),

@@ -4,6 +4,7 @@ use geo::{Area, BooleanOps};
 use glam::{Quat, Vec2, Vec3};
 use treemorph_analysis::Analysis;
 use treemorph_tree::geom::NONE;
+use treemorph_tree::timing::{Pace, ScheduleKind};
 use treemorph_tree::{Frame, FrameTopology, NodeId, Tree};
 
 use crate::adapt;
@@ -16,6 +17,7 @@ use crate::options::{Method, SketchOptions};
 use crate::polygon;
 use crate::prune;
 use crate::sketch::{Fit, Sketch};
+use crate::sketcher::Sketcher;
 use crate::time::clamp_t;
 use crate::view::{Camera, View};
 
@@ -94,6 +96,8 @@ pub struct SketchPlan {
     pub(crate) chain_wilts: Vec<bool>,
     /// The analysis' lobes, kept for the lobe deformation.
     pub(crate) lobes: crate::lobes::LobeSource,
+    /// How a staged sketch's `t` is paced (`None`: unpaced; see `time`).
+    pub(crate) pace: Option<Pace>,
 }
 
 fn fit_to(points: &[Vec2], target: &[Vec2]) -> Result<Vec<Vec2>, SketchError> {
@@ -177,9 +181,16 @@ impl SketchPlan {
             leaf_wilts: wilting.leaves,
             chain_wilts: wilting.chains,
             lobes,
+            pace: None,
         };
         if options.method == Method::Multiscale && sketch.closed && options.foliage_passes > 0 {
             foliage::fit(&mut plan, options.foliage_passes)?;
+        }
+        if options.schedule.kind == ScheduleKind::Staged {
+            let mut sketcher = Sketcher::new(&plan);
+            plan.pace = Pace::measure(options.schedule.easing, |t, frame| {
+                sketcher.deform(t, frame)
+            });
         }
         Ok(plan)
     }
@@ -187,6 +198,11 @@ impl SketchPlan {
     /// The union topology every frame shares (the input tree's).
     pub fn topology(&self) -> &FrameTopology {
         &self.topology
+    }
+
+    /// The tree's height above its root, metres.
+    pub fn height(&self) -> f32 {
+        self.height
     }
 
     /// The input tree as a frame (what t = 0 gives).

@@ -292,7 +292,7 @@ fn toward(from: Vec3, to: Vec3, length: f32) -> Vec3 {
 }
 
 /// Chain ids ordered so that each comes after its parent.
-fn parents_first(parents: &[Option<u32>]) -> Vec<u32> {
+pub(crate) fn parents_first(parents: &[Option<u32>]) -> Vec<u32> {
     let mut children = vec![Vec::new(); parents.len()];
     let mut order: Vec<u32> = Vec::with_capacity(parents.len());
     for (c, p) in parents.iter().enumerate() {

@@ -187,6 +187,50 @@ pub struct FrameLeaf {
     pub blend: f32,
 }
 
+impl FrameLeaf {
+    /// The corners of the leaf's quad as the output stage meshes it: the
+    /// anchor at the middle of its base edge, `width` across and `height`
+    /// up its orientation's x and y axes.
+    pub fn corners(&self) -> [Vec3; 4] {
+        let across = self.orientation * Vec3::X * (0.5 * self.width.max(0.0));
+        let up = self.orientation * Vec3::Y * self.height.max(0.0);
+        let a = self.anchor;
+        [a - across, a + across, a + across + up, a - across + up]
+    }
+}
+
+/// How far a sequence moves per frame: the farthest any node or leaf
+/// corner moved since the previous frame measured.
+#[derive(Clone, Debug, Default)]
+pub struct JumpMeter {
+    previous: Vec<Vec3>,
+    has_previous: bool,
+}
+
+impl JumpMeter {
+    /// The largest distance a node or a leaf quad's corner of `frame`
+    /// moved since the previous frame (0 for the first, or after a change
+    /// of topology), in metres; keeps this frame's.
+    pub fn jump(&mut self, frame: &Frame) -> f32 {
+        let count = frame.positions.len() + 4 * frame.leaves.len();
+        let mut max_jump = 0.0f32;
+        if self.has_previous && self.previous.len() == count {
+            for (p, q) in frame.points().zip(&self.previous) {
+                max_jump = max_jump.max(p.distance(*q));
+            }
+        }
+        self.previous.clear();
+        self.previous.extend(frame.points());
+        self.has_previous = true;
+        max_jump
+    }
+
+    /// Forgets the previous frame (the next jump is 0).
+    pub fn reset(&mut self) {
+        self.has_previous = false;
+    }
+}
+
 /// One in-between tree: the varying part of a frame sequence.
 /// `Frame::default()` is an empty frame at t = 0, a buffer for a morpher
 /// or sketcher to fill.
@@ -210,6 +254,14 @@ pub struct Frame {
 pub struct FrameMismatch(pub String);
 
 impl Frame {
+    /// Every node, then every leaf quad's corners ([`FrameLeaf::corners`]).
+    pub fn points(&self) -> impl Iterator<Item = Vec3> + '_ {
+        self.positions
+            .iter()
+            .copied()
+            .chain(self.leaves.iter().flat_map(FrameLeaf::corners))
+    }
+
     /// The frame of a static tree (t = 0).
     pub fn of_tree(tree: &Tree) -> Frame {
         let nodes = tree.skeleton().nodes();

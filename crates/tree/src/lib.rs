@@ -55,10 +55,11 @@ pub mod geom;
 pub mod json;
 mod model;
 mod texture;
+pub mod timing;
 mod validate;
 
 pub use bounds::Aabb;
-pub use frame::{Frame, FrameLeaf, FrameLeafTopology, FrameTopology, Strands};
+pub use frame::{Frame, FrameLeaf, FrameLeafTopology, FrameTopology, JumpMeter, Strands};
 pub use model::{
     Bark, BranchingPattern, GroundTruth, GroundTruthGroup, Leaf, LeafMaterial, Materials, Node,
     NodeId, Skeleton, Tree, TreeParts, TreeStats,

@@ -3,13 +3,14 @@
 # one row of the job's metrics.json figures, measured on the frames it
 # writes:
 #   pair schedule matching jump_ratio max_jump out_of_order reversals
-#   coincident floating_leaves floating_branches
+#   coincident crossings floating_leaves floating_branches
 # jump_ratio is the largest per-frame move of a node or leaf corner over
 # the median one; out_of_order the most chains in one frame not growing
 # from the tip; reversals the most growing chains that shrank (wilting
 # ones that grew); coincident the most visible leaves in one frame drawn on
 # top of another with a different material pair (z-fighting copies);
-# floating the most in one frame, by the output-level check on the delta
+# crossings the most pairs of branch tubes in one frame passing through
+# each other that touch at neither end; floating the most in one frame, by the output-level check on the delta
 # stream's meshes.
 #
 # Usage: benches/motion.sh [TREE...]   With no trees, five preset pairs
@@ -40,13 +41,13 @@ figures() {
 import json, sys
 m = json.load(open(sys.argv[1]))
 top = lambda k: max(m[k])
-print("%10.2f %8.4f %12d %9d %10d %8d %8d" % (m["jump_ratio"], top("max_jump"),
+print("%10.2f %8.4f %12d %9d %10d %9d %8d %8d" % (m["jump_ratio"], top("max_jump"),
       top("growth_out_of_order"), top("growth_reversals"), top("coincident_leaves"),
-      top("floating_leaves"), top("floating_branches")))
+      top("crossings"), top("floating_leaves"), top("floating_branches")))
 PY
 }
-printf '%-28s %-8s %-11s %10s %8s %12s %9s %10s %8s %8s\n' pair schedule matching \
-  jump_ratio max_jump out_of_order reversals coincident f_leaves f_branch
+printf '%-28s %-8s %-11s %10s %8s %12s %9s %10s %9s %8s %8s\n' pair schedule matching \
+  jump_ratio max_jump out_of_order reversals coincident crossings f_leaves f_branch
 n=${#trees[@]}
 for ((i = 0; i < n; i++)); do
   a=${trees[$i]} b=${trees[$(((i + 1) % n))]}

@@ -1,13 +1,11 @@
 //! Lobes (§4.2): the top-down threshold K-means that gives every leaf an
 //! inner lobe, and the IL / OL / GOL shapes.
 
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 use std::ops::Range;
 
 use glam::{IVec3, Quat, Vec3};
 use rayon::prelude::*;
-use treemorph_tree::geom::{NONE, closest_on_segment};
+use treemorph_tree::geom::{CellMap, NONE, closest_on_segment};
 use treemorph_tree::{Leaf, NodeId, Skeleton, Tree};
 
 use crate::chain::{Chain, ChainId};
@@ -163,30 +161,6 @@ fn threshold_kmeans(
     assign
 }
 
-/// A multiplicative hasher for grid cells (SipHash dominated the search).
-#[derive(Default)]
-struct CellHasher(u64);
-
-impl Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(u64::from(b));
-        }
-    }
-
-    fn write_i32(&mut self, v: i32) {
-        self.write_u64(v as u32 as u64);
-    }
-
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(21) ^ v).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    }
-}
-
 /// Each leaf's IL chain by
 /// [`LobeClustering::NearestBranch`](crate::LobeClustering::NearestBranch).
 pub(crate) fn nearest_branch(
@@ -216,7 +190,7 @@ pub(crate) fn nearest_branch(
         .max(1e-4)
         * 2.0;
     let key = |p: Vec3| (p / cell).floor().as_ivec3();
-    let mut grid: HashMap<IVec3, Vec<u32>, BuildHasherDefault<CellHasher>> = HashMap::default();
+    let mut grid: CellMap<Vec<u32>> = CellMap::default();
     for i in 1..nodes.len() {
         let (a, b) = seg(i);
         let (lo, hi) = (key(a.min(b)), key(a.max(b)));

@@ -31,8 +31,10 @@
 //! growing from the tip, and `growth_reversals` those that shrank while
 //! growing (or grew while wilting); `coincident_leaves` per frame counts
 //! visible leaves drawn on top of another with a different material pair
-//! (copies of one leaf, which z-fight). The summary carries the largest
-//! of each.
+//! (copies of one leaf, which z-fight). Both kinds count `crossings` per
+//! frame: pairs of branch tubes passing through each other that touch at
+//! neither end (`treemorph_verify::crossings`). The summary carries the
+//! largest of each.
 //!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
@@ -56,8 +58,8 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
-use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
-use treemorph_verify::{MeshView, Plausibility, PlausibilityOptions, Report};
+use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter, Strands};
+use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::{
     FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
@@ -208,7 +210,7 @@ fn run_morph(
         &spec.render,
         |t, frame| morpher.morph(t, frame),
         |frame, written| match meter.measure(frame) {
-            Ok(m) => series.push(&m, written),
+            Ok(m) => series.push(&m, written, (&plan.topology().strands, frame)),
             Err(e) => measure_error = Some(e),
         },
         sink,
@@ -259,9 +261,14 @@ impl MorphSeries {
         }
     }
 
-    fn push(&mut self, m: &treemorph_morph::FrameMetrics, written: &Report) {
+    fn push(
+        &mut self,
+        m: &treemorph_morph::FrameMetrics,
+        written: &Report,
+        drawn: (&Strands, &Frame),
+    ) {
         self.t.push(m.t);
-        self.written.push(written);
+        self.written.push(written, drawn);
         self.constructed_floating_branches.push(m.floating_branches);
         self.constructed_floating_leaves.push(m.floating_leaves);
         self.mtsw.push(m.mtsw);
@@ -334,7 +341,10 @@ fn run_sketch(
         plan.topology(),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
-        |frame, written| series.push(meter.measure(frame), frame, written),
+        |frame, written| {
+            let drawn = (&plan.topology().strands, frame);
+            series.push(meter.measure(frame), written, drawn)
+        },
         sink,
     )?;
     let (metrics, summary) = if spec.render.measured {
@@ -380,13 +390,18 @@ impl SketchSeries {
         }
     }
 
-    fn push(&mut self, m: treemorph_sketch::FrameMetrics, frame: &Frame, written: &Report) {
+    fn push(
+        &mut self,
+        m: treemorph_sketch::FrameMetrics,
+        written: &Report,
+        drawn: (&Strands, &Frame),
+    ) {
         self.frechet.push(m.frechet_normalised);
-        self.max_jump.push(self.jumps.jump(frame) / self.height);
+        self.max_jump.push(self.jumps.jump(drawn.1) / self.height);
         self.stretch.push(m.max_stretch);
         self.growth.push(m.max_growth);
         self.first_depth_width.get_or_insert(m.crown_depth_width);
-        self.written.push(written);
+        self.written.push(written, drawn);
         self.constructed_floating_branches.push(m.floating_branches);
         self.constructed_floating_leaves.push(m.floating_leaves);
         self.last = Some(m);
@@ -428,11 +443,13 @@ impl SketchSeries {
     }
 }
 
-/// The output-level counts of every frame as written.
+/// The output-level counts of every frame as written, and the crossings
+/// of its branch tubes (`treemorph-verify`).
 #[derive(Default)]
 struct WrittenSeries {
     floating_branches: Vec<u32>,
     floating_leaves: Vec<u32>,
+    crossings: CrossingMeter,
 }
 
 impl WrittenSeries {
@@ -440,22 +457,28 @@ impl WrittenSeries {
         WrittenSeries {
             floating_branches: Vec::with_capacity(n),
             floating_leaves: Vec::with_capacity(n),
+            crossings: CrossingMeter::new(),
         }
     }
 
-    fn push(&mut self, report: &Report) {
+    fn push(&mut self, report: &Report, (strands, frame): (&Strands, &Frame)) {
         self.floating_branches.push(report.floating_branches);
         self.floating_leaves.push(report.floating_leaves);
+        self.crossings.push(strands, frame);
     }
 
     /// Adds the per-frame counts to `metrics.json` and their maxima to the
-    /// summary, under the names both have always had.
+    /// summary, under the names both have always had (`crossings` is
+    /// new).
     fn write_into(self, metrics: &mut Value, summary: &mut Value) {
         let max = |v: &[u32]| v.iter().max().copied().unwrap_or(0);
+        let crossings = self.crossings.crossings();
         summary["floating_branches"] = max(&self.floating_branches).into();
         summary["floating_leaves"] = max(&self.floating_leaves).into();
+        summary["crossings"] = max(&crossings).into();
         metrics["floating_branches"] = self.floating_branches.into();
         metrics["floating_leaves"] = self.floating_leaves.into();
+        metrics["crossings"] = crossings.into();
     }
 }
 

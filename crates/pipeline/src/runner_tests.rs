@@ -189,12 +189,22 @@ fn heart_request(frames: u32) -> JobRequest {
     })
 }
 
-/// Every frame of `metrics.json` counts 0 floating branches and leaves.
+/// Every frame of `metrics.json` counts 0 floating branches and leaves,
+/// and its crossings, none at the ends (which define them).
 fn assert_no_floating(metrics: &Value) {
     for key in ["floating_branches", "floating_leaves"] {
         let counts = metrics[key].as_array().unwrap();
         assert!(counts.iter().all(|v| v == 0), "{key}: {counts:?}");
     }
+    let crossings = metrics["crossings"].as_array().unwrap();
+    assert_eq!(
+        crossings.len(),
+        metrics["floating_leaves"].as_array().unwrap().len()
+    );
+    assert_eq!(
+        (&crossings[0], crossings.last().unwrap()),
+        (&0.into(), &0.into())
+    );
 }
 
 #[test]

@@ -6,9 +6,11 @@
 //! polyline is nearest: they compare those distances against each other's
 //! output.
 
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 use std::ops::{Add, Mul, Sub};
 
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, IVec3, Vec2, Vec3};
 
 /// "No index" in `u32` index arrays (no parent, no vertex, not yet
 /// visited, no owner). Index arrays stay plain `u32` rather than
@@ -102,5 +104,34 @@ mod tests {
             0.25
         );
         assert_eq!(distance_to_segment(Vec3::new(5.0, 4.0, 0.0), a, b), 5.0);
+    }
+}
+
+/// A map keyed by grid cell, hashed multiplicatively: SipHash, the
+/// default, cost more than the work done per cell in the spatial grids
+/// that use it (lobe clustering, branch crossings).
+pub type CellMap<V> = HashMap<IVec3, V, BuildHasherDefault<CellHasher>>;
+
+/// The hasher of [`CellMap`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+
+    fn write_i32(&mut self, v: i32) {
+        self.write_u64(u64::from(v as u32));
+    }
+
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(21) ^ v).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     }
 }

@@ -39,6 +39,9 @@
 //!   is not floating by this test: it measures gaps, not connectivity to
 //!   the root. A piece sealed inside another without touching its surface
 //!   counts as floating when farther than the reach from it.
+//! - **Crossings** ([`CrossingMeter`]): pairs of branch pieces whose tubes
+//!   pass through each other in a frame of a sequence but at neither of
+//!   its ends, from the tubes' capsules (see the `crossings` module).
 //!
 //! # How
 //! [`Plausibility`] is a reusable context (lyon-style): it keeps its
@@ -72,11 +75,13 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod crossings;
 pub mod geometry;
 pub mod glb;
 mod grid;
 pub mod plausibility;
 
+pub use crossings::CrossingMeter;
 pub use glb::{GlbMeshes, ReadGlbError, read_glb};
 pub use plausibility::{
     FloatingLeaf, FloatingPiece, LeafLayout, MeshView, Plausibility, PlausibilityOptions, Report,

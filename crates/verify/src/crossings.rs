@@ -1,0 +1,243 @@
+//! Crossing branches: pairs of branch pieces whose tubes pass through each
+//! other in a frame but at neither end of its sequence.
+//!
+//! A **piece** is a strand of the frame topology: one tube of the branch
+//! mesh, as the mesher sweeps it. Its tube lies within the union of its
+//! segments' **capsules** — segment `(a, b)` with the larger of its two
+//! radii — since the tube's rings are polygons inscribed in circles of
+//! those radii. Two pieces **touch** in a frame when capsules of theirs
+//! overlap (segment distance below the sum of the radii); segments of no
+//! radius are not drawn and touch nothing. A child's tube starts inside
+//! its parent's, so neighbours touch at both ends of a sequence; a pair
+//! that touches in a frame and at neither end (t = 0 and t = 1, frames of
+//! the same topology) is a **crossing**: limbs passing through each other
+//! mid-animation.
+//!
+//! Capsules rather than the written triangles: the exact triangle test of
+//! the plausibility check costs tens of milliseconds per frame on a
+//! 5,000-branch tree, the capsules a few, and they bound the tubes (a
+//! capsule pair may touch where the polygonal tubes just miss, by at most
+//! the polygon's sagitta). The broad phase is a uniform grid over the
+//! capsules' bounds in a `HashMap`: written here because it is a dozen
+//! lines and a collision crate would bring a physics engine ([`CellMap`]
+//! hashes the cells).
+
+use glam::{IVec3, Vec3};
+use treemorph_tree::geom::CellMap;
+use treemorph_tree::{Frame, Strands};
+
+use crate::geometry::segment_segment_sq;
+
+/// A capsule covering more cells than this is tested against every other
+/// capsule of the cells it does cover only (bounds the grid's size).
+const MAX_CELLS: i32 = 4096;
+
+/// Pairs of pieces touching per frame of a sequence, and the crossings
+/// they make (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct CrossingMeter {
+    /// Per frame measured: the touching piece pairs, sorted.
+    frames: Vec<Vec<(u32, u32)>>,
+    capsules: Vec<Capsule>,
+    /// Capsules per grid cell; emptied, not dropped, between frames.
+    cells: CellMap<Vec<u32>>,
+}
+
+/// One drawn segment of a piece, with the larger of its radii.
+#[derive(Clone, Copy, Debug)]
+struct Capsule {
+    a: Vec3,
+    b: Vec3,
+    r: f32,
+    piece: u32,
+    nodes: (u32, u32),
+}
+
+impl CrossingMeter {
+    /// A meter with no frame measured.
+    pub fn new() -> CrossingMeter {
+        CrossingMeter::default()
+    }
+
+    /// Measures the next frame of the sequence (`strands` its topology's).
+    pub fn push(&mut self, strands: &Strands, frame: &Frame) {
+        self.collect(strands, frame);
+        let pairs = self.touching();
+        self.frames.push(pairs);
+    }
+
+    /// Per frame measured: the piece pairs touching in it and in neither
+    /// the first nor the last frame measured.
+    pub fn crossings(&self) -> Vec<u32> {
+        let (Some(first), Some(last)) = (self.frames.first(), self.frames.last()) else {
+            return Vec::new();
+        };
+        self.frames
+            .iter()
+            .map(|pairs| {
+                pairs
+                    .iter()
+                    .filter(|p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
+                    .count() as u32
+            })
+            .collect()
+    }
+
+    /// The frame's drawn segments as capsules.
+    fn collect(&mut self, strands: &Strands, frame: &Frame) {
+        self.capsules.clear();
+        let (pos, radii) = (&frame.positions, &frame.radii);
+        for (piece, nodes) in strands.iter().enumerate() {
+            for w in nodes.windows(2) {
+                let (i, j) = (w[0] as usize, w[1] as usize);
+                let r = radii[i].max(radii[j]);
+                if r > 0.0 && r.is_finite() && pos[i].is_finite() && pos[j].is_finite() {
+                    self.capsules.push(Capsule {
+                        a: pos[i],
+                        b: pos[j],
+                        r,
+                        piece: piece as u32,
+                        nodes: (w[0], w[1]),
+                    });
+                }
+            }
+        }
+    }
+
+    /// The sorted pairs of pieces with overlapping capsules.
+    fn touching(&mut self) -> Vec<(u32, u32)> {
+        let cell = cell_size(&self.capsules);
+        self.cells.values_mut().for_each(Vec::clear);
+        for (k, c) in self.capsules.iter().enumerate() {
+            let (lo, hi) = bounds(c, cell);
+            for cell in cells(lo, hi) {
+                self.cells.entry(cell).or_default().push(k as u32);
+            }
+        }
+        let mut pairs = Vec::new();
+        for members in self.cells.values() {
+            for (x, &i) in members.iter().enumerate() {
+                for &j in &members[x + 1..] {
+                    let (p, q) = (&self.capsules[i as usize], &self.capsules[j as usize]);
+                    if let Some(pair) = overlap(p, q) {
+                        pairs.push(pair);
+                    }
+                }
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs
+    }
+}
+
+/// The piece pair of two overlapping capsules of different pieces that
+/// share no node (a child's first segment starts on its parent's node).
+fn overlap(p: &Capsule, q: &Capsule) -> Option<(u32, u32)> {
+    if p.piece == q.piece {
+        return None;
+    }
+    let shared = [p.nodes.0, p.nodes.1]
+        .iter()
+        .any(|n| *n == q.nodes.0 || *n == q.nodes.1);
+    let reach = p.r + q.r;
+    (!shared && segment_segment_sq(p.a, p.b, q.a, q.b) < reach * reach)
+        .then(|| (p.piece.min(q.piece), p.piece.max(q.piece)))
+}
+
+/// A grid cell about as large as a typical capsule (the mean segment
+/// length plus diameter), so most capsules cover a few cells.
+fn cell_size(capsules: &[Capsule]) -> f32 {
+    let n = capsules.len().max(1) as f32;
+    let mean = capsules
+        .iter()
+        .map(|c| c.a.distance(c.b) + 2.0 * c.r)
+        .sum::<f32>()
+        / n;
+    if mean > 0.0 && mean.is_finite() {
+        mean
+    } else {
+        1.0
+    }
+}
+
+/// The cell range of a capsule's bounds.
+fn bounds(c: &Capsule, cell: f32) -> (IVec3, IVec3) {
+    let lo = (c.a.min(c.b) - Vec3::splat(c.r)) / cell;
+    let hi = (c.a.max(c.b) + Vec3::splat(c.r)) / cell;
+    (lo.floor().as_ivec3(), hi.floor().as_ivec3())
+}
+
+/// The cells from `lo` to `hi`, at most [`MAX_CELLS`] of them (a longer
+/// range is cut short along z, then y: such a capsule still meets every
+/// capsule in the cells kept).
+fn cells(lo: IVec3, hi: IVec3) -> impl Iterator<Item = IVec3> {
+    let span = (hi - lo + IVec3::ONE).max(IVec3::ONE);
+    let x_count = span.x.min(MAX_CELLS);
+    let y_count = span.y.min((MAX_CELLS / x_count).max(1));
+    let z_count = span.z.min((MAX_CELLS / (x_count * y_count)).max(1));
+    (0..x_count).flat_map(move |x| {
+        (0..y_count).flat_map(move |y| (0..z_count).map(move |z| lo + IVec3::new(x, y, z)))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(positions: Vec<Vec3>, radius: f32) -> Frame {
+        Frame {
+            radii: vec![radius; positions.len()],
+            positions,
+            ..Frame::default()
+        }
+    }
+
+    #[test]
+    fn a_pair_touching_only_in_between_is_a_crossing() {
+        // Two sticks from the ground: apart, crossed, apart again.
+        let strands = Strands::from_polylines([vec![0u32, 1], vec![2, 3]]);
+        let at = |x: f32| {
+            frame(
+                vec![
+                    Vec3::ZERO,
+                    Vec3::new(x, 1.0, 0.0),
+                    Vec3::new(1.0, 0.0, 0.0),
+                    Vec3::new(1.0 - x, 1.0, 0.0),
+                ],
+                0.01,
+            )
+        };
+        let mut meter = CrossingMeter::new();
+        for x in [0.0, 1.0, 0.0] {
+            meter.push(&strands, &at(x));
+        }
+        assert_eq!(meter.crossings(), vec![0, 1, 0]);
+    }
+
+    #[test]
+    fn neighbours_touching_at_the_ends_and_undrawn_pieces_do_not_cross() {
+        // A child from its parent's node, and a twig of no radius
+        // through the parent.
+        let strands = Strands::from_polylines([vec![0u32, 1, 2], vec![1, 3], vec![4, 5]]);
+        let mut f = frame(
+            vec![
+                Vec3::ZERO,
+                Vec3::Y,
+                Vec3::Y * 2.0,
+                Vec3::new(1.0, 1.5, 0.0),
+                Vec3::new(-1.0, 0.5, 0.0),
+                Vec3::new(1.0, 0.5, 0.0),
+            ],
+            0.05,
+        );
+        f.radii[4] = 0.0;
+        f.radii[5] = 0.0;
+        let mut meter = CrossingMeter::new();
+        for _ in 0..3 {
+            meter.push(&strands, &f);
+        }
+        assert_eq!(meter.crossings(), vec![0, 0, 0]);
+        assert!(meter.frames[1].is_empty(), "{:?}", meter.frames[1]);
+    }
+}

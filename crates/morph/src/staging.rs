@@ -13,8 +13,11 @@ use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 /// when nothing moves.
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
     let mut morpher = Morpher::new(plan);
-    Pace::measure(easing, |t, frame| morpher.morph(t, frame))
+    Pace::measure(PACE_SAMPLES, easing, |t, frame| morpher.morph(t, frame))
 }
+
+/// Instants at which a staged plan samples its motion to pace it.
+const PACE_SAMPLES: usize = 64;
 
 /// Staged: of the union leaves that share a source leaf (a leaf with
 /// several partners), the first keeps it and the others grow in as new

@@ -23,9 +23,10 @@
 //! ```
 //!
 //! The crate is synchronous and does no I/O. [`SketchPlan::new`] does the
-//! per-sketch work once (≈ 50–90 ms for 5,000 branches in release, 20–35
-//! ms of it without the foliage fit's three measured frames); a
-//! [`Sketcher`] then makes any frame in ≈ 1 ms, reusing its buffers.
+//! per-sketch work once (≈ 45–50 ms for 5,000 branches in release,
+//! `treemorph bench`: the foliage fit's measured frames and a staged
+//! sketch's pacing included); a [`Sketcher`] solves the end pose when made
+//! (≈ 1 ms) and then makes any frame in ≈ 0.2 ms, reusing its buffers.
 //!
 //! # Glossary
 //! - **chain**, **chain group**, **BPTT**, **IL / OL / GOL** (inner lobe,
@@ -162,26 +163,32 @@
 //!    Details in the `foliage` module.
 //!
 //! # Frames ([`Sketcher::deform`])
-//! The cages and chain systems work in **displacements in the view plane**
-//! (NDC); a node is placed at its displaced screen position, unprojected
-//! at a depth that follows the crown's width (`depth` module), and t = 0
-//! reproduces the input bit for bit. At time t: the crown cage moves to
-//! `S(t) = S0 + t (S1 − S0)` per corresponding sample; each cage follows
-//! its parent by MVC plus `t ×` its self-adaptive correction; chain targets
-//! follow their control cages; chains are solved order by order, each
-//! junction where the parent chain put it (*forward propagation*: chains
-//! stay connected by construction). Then every chain is re-solved,
-//! parents first, to reach its solved tip from its junction with its rest
-//! segment lengths times its growth (its chord now over at rest), so
-//! branches bend at their nodes rather than stretch (`rigid` module; a
-//! node's depth moves within its chain's). Nodes of
-//! wilting subtrees then shrink toward their subtree's junction by the
-//! factor `1 − t`, radii too. Leaves ride on the branch they grow
-//! on: anchor = the deformed branch point at the leaf's parameter + its
-//! offset rotated by the branch's rotation (the shortest arc from its rest
-//! to its deformed direction), orientation rotated likewise; a wilting
-//! leaf's offset, width and height scale by `1 − t`. The deformation is
-//! linear in t apart from the wilting.
+//! [`Sketcher::new`] solves the **end pose** once, as the paper makes a
+//! frame at t = 1. The cages and chain systems work in **displacements in
+//! the view plane** (NDC): the crown cage moves to the sketched crown
+//! `S1`; each cage follows its parent by MVC plus its self-adaptive
+//! correction; chain targets follow their control cages; chains are
+//! solved order by order, each junction where the parent chain put it
+//! (*forward propagation*: chains stay connected by construction). A node
+//! is placed at its displaced screen position, unprojected at a depth
+//! that follows the crown's width (`depth` module). Then every chain is
+//! re-solved, parents first, to reach its solved tip from its junction
+//! with its rest segment lengths times its growth (its chord now over at
+//! rest), so branches bend at their nodes rather than stretch (`rigid`
+//! module).
+//!
+//! A frame at time t moves **along arcs** toward that pose (`arcs`
+//! module): every segment turns from its rest direction to its end
+//! direction along its own great circle, its length going linearly from
+//! rest to end, on its chain's clock (`time` module: one clock `t`, or
+//! staged — pruned subtrees first, trunks before twigs, eased, paced); a
+//! chain's radii follow its length. Nodes of wilting subtrees shrink
+//! toward their subtree's junction on the shed clock, radii too. Leaves
+//! ride on the branch they grow on: anchor = the deformed branch point at
+//! the leaf's parameter + its offset (moved out or in with the branch's
+//! radius) rotated with the segment, orientation rotated likewise; a
+//! wilting leaf's offset, width and height shrink with its subtree. t = 0
+//! reproduces the input bit for bit and t = 1 is the end pose.
 //!
 //! [`Sketcher::deform_cages`] gives the cages of a frame (for drawing),
 //! [`Sketcher::deform_lobes`] the lobes deformed with them (§5.3 step 2:
@@ -205,7 +212,8 @@
 //! crown), with the **coverage** and **spill** it splits into. **Floating**
 //! branches and leaves, with the morph pipeline's definitions (a chain's
 //! junction off its parent's axis + radius + ε; a leaf farther from its
-//! chain than its offset + ε; ε = 10⁻⁴ × the tree height) — always 0 here.
+//! chain than its offset, moved with its branch's radius, + ε; ε = 10⁻⁴ ×
+//! the tree height) — always 0 here.
 //!
 //! # Baseline
 //! [`Method::SingleCage`] is the paper's Figure 13 comparison: the crown is

@@ -73,6 +73,13 @@ impl<'p> Sketcher<'p> {
     /// their offset from its axis following its radius.
     pub fn deform(&mut self, t: f32, frame: &mut Frame) {
         let t = clamp_t(t);
+        let left = self.place_branches(t, frame);
+        self.place_leaves(t, left, frame);
+    }
+
+    /// The nodes and radii of `frame` at `t` (in [0, 1]), its leaves
+    /// cleared; returns how much of the wilting subtrees is left.
+    pub(crate) fn place_branches(&mut self, t: f32, frame: &mut Frame) -> f32 {
         let plan = self.plan;
         let rest = &plan.rest;
         frame.t = t;
@@ -81,6 +88,7 @@ impl<'p> Sketcher<'p> {
         frame.positions.extend_from_slice(&rest.positions);
         frame.radii.clear();
         frame.radii.extend_from_slice(&rest.radii);
+        frame.leaves.clear();
         let paced = self.clocks.paced(t);
         if t > 0.0 {
             self.arcs.place(
@@ -93,7 +101,7 @@ impl<'p> Sketcher<'p> {
         }
         let left = 1.0 - self.clocks.shed(paced);
         shrink_wilts(plan, left, frame);
-        self.place_leaves(t, left, frame);
+        left
     }
 
     /// The end pose, as the paper makes a frame (Step 1–3):
@@ -159,7 +167,6 @@ impl<'p> Sketcher<'p> {
         let plan = self.plan;
         let rest = &plan.rest;
         let parents = &plan.topology.parents;
-        frame.leaves.clear();
         for (l, top) in plan.topology.leaves.iter().enumerate() {
             let node = top.node as usize;
             let parent = parents[node].map_or(node, |p| p as usize);

@@ -168,8 +168,6 @@ impl Ease {
     }
 }
 
-/// Instants at which a staged animation samples its motion to pace it.
-const PACE_SAMPLES: usize = 64;
 /// Share of the mean motion per sample every stretch keeps, however still.
 const PACE_FLOOR: f32 = 0.05;
 
@@ -177,9 +175,9 @@ const PACE_FLOOR: f32 = 0.05;
 /// depths leave some stretches of `t` busy and others nearly still; a
 /// pace plays the motion so that the share of it covered by `t` follows
 /// the easing over the whole animation: every frame moves about as far as
-/// the next, with a gentle start and end. The motion is sampled at 64
+/// the next, with a gentle start and end. The motion is sampled at even
 /// instants (the farthest any node or leaf corner moves between
-/// neighbours); a little time (5 % of the mean) is kept for every
+/// neighbours; a morph takes 64); a little time (5 % of the mean) is kept for every
 /// stretch, so nothing is skipped.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Pace {
@@ -191,15 +189,20 @@ pub struct Pace {
 
 impl Pace {
     /// Paces the motion `frame_at` makes (it writes the unpaced frame at
-    /// `τ` into the frame given); `None` when nothing moves.
-    pub fn measure(easing: f32, mut frame_at: impl FnMut(f32, &mut Frame)) -> Option<Pace> {
+    /// `τ` into the frame given), sampled `samples` times after τ = 0;
+    /// `None` when nothing moves.
+    pub fn measure(
+        samples: usize,
+        easing: f32,
+        mut frame_at: impl FnMut(f32, &mut Frame),
+    ) -> Option<Pace> {
         let mut frame = Frame::default();
         let mut jumps = JumpMeter::default();
         frame_at(0.0, &mut frame);
         jumps.jump(&frame);
-        let moved: Vec<f32> = (1..=PACE_SAMPLES)
+        let moved: Vec<f32> = (1..=samples)
             .map(|i| {
-                frame_at(i as f32 / PACE_SAMPLES as f32, &mut frame);
+                frame_at(i as f32 / samples as f32, &mut frame);
                 jumps.jump(&frame)
             })
             .collect();

@@ -66,21 +66,26 @@ impl CrossingMeter {
         self.frames.push(pairs);
     }
 
-    /// Per frame measured: the piece pairs touching in it and in neither
-    /// the first nor the last frame measured.
+    /// Per frame measured: how many piece pairs touch in it and in
+    /// neither the first nor the last frame measured.
     pub fn crossings(&self) -> Vec<u32> {
-        let (Some(first), Some(last)) = (self.frames.first(), self.frames.last()) else {
-            return Vec::new();
-        };
-        self.frames
-            .iter()
-            .map(|pairs| {
-                pairs
-                    .iter()
-                    .filter(|p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
-                    .count() as u32
-            })
+        (0..self.frames.len())
+            .map(|i| self.crossing_pairs(i).count() as u32)
             .collect()
+    }
+
+    /// The piece pairs (strand indices, lower first) of frame `i` touching
+    /// in it and in neither the first nor the last frame measured.
+    pub fn crossing_pairs(&self, i: usize) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let none: &[(u32, u32)] = &[];
+        let first = self.frames.first().map_or(none, Vec::as_slice);
+        let last = self.frames.last().map_or(none, Vec::as_slice);
+        self.frames
+            .get(i)
+            .map_or(none, Vec::as_slice)
+            .iter()
+            .copied()
+            .filter(move |p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
     }
 
     /// The frame's drawn segments as capsules.

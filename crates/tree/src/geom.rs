@@ -116,21 +116,26 @@ pub type CellMap<V> = HashMap<IVec3, V, BuildHasherDefault<CellHasher>>;
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CellHasher(u64);
 
+// `#[inline]`: the maps that use it are instantiated in other crates.
 impl Hasher for CellHasher {
+    #[inline]
     fn finish(&self) -> u64 {
         self.0
     }
 
+    #[inline]
     fn write(&mut self, bytes: &[u8]) {
         for &b in bytes {
             self.write_u64(u64::from(b));
         }
     }
 
+    #[inline]
     fn write_i32(&mut self, v: i32) {
         self.write_u64(u64::from(v as u32));
     }
 
+    #[inline]
     fn write_u64(&mut self, v: u64) {
         self.0 = (self.0.rotate_left(21) ^ v).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     }

@@ -22,9 +22,10 @@
 //!   (0.1 %, 0.7 %, 3.4 %, … 18.5 %), as the planar path did.
 //! - **Lengths hold in between.** A segment's length goes linearly from
 //!   its rest length to its end length, so it is never longer or shorter
-//!   than at its two ends (the planar path shortened rotating branches
-//!   mid-way). A segment of no rest length has no direction: it turns
-//!   with its parent and its end offset fades in.
+//!   than at its two ends, by construction rather than by re-solving
+//!   every frame (as the planar path had to, at 3–4 × the cost of a
+//!   frame). A segment of no rest length has no direction: it turns with
+//!   its parent and its end offset fades in.
 //! - **Radii follow a length change.** A chain's radii scale with its
 //!   arc length, end over rest (geometric similarity: a limb the sketch
 //!   lengthens 1.5× thickens 1.5×, a shortened one thins), blended by its

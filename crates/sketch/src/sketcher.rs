@@ -15,8 +15,9 @@ use crate::plan::{Level, SketchPlan, Source};
 use crate::rigid::Rigid;
 use crate::time::{Clocks, clamp_t};
 
-/// Reusable context that deforms the planned tree to any time t ∈ [0, 1]
-/// (the paper's Step 1–3 per frame). Keeps its buffers between frames.
+/// Reusable context that solves the planned tree's end pose once (the
+/// paper's Step 1–3) and turns the tree toward it at any time t ∈ [0, 1].
+/// Keeps its buffers between frames.
 pub struct Sketcher<'p> {
     plan: &'p SketchPlan,
     cage_disp: Vec<Vec2>,

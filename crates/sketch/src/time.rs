@@ -15,7 +15,6 @@
 //!   those near its tip. A child's `d` is never below its parent's.
 //! - **Easing.** Each window eases in and out ([`Ease`]), exact at its
 //!   ends: t = 0 is the input and t = 1 the sketched tree.
-//!
 //! - **Pacing.** The staggered, eased windows still leave some stretches
 //!   of `t` busier than others (60 frames on a maple: the largest
 //!   frame-to-frame move 1.59 × the median one for a heart, 2.47 × for a

@@ -137,9 +137,12 @@
 //!    weights in 3D, rows normalised) plus — our addition, weight
 //!    [`SketchOptions::node_weight`] — a soft pull of every caged node to
 //!    its cage target. *With the tip alone (the paper taken literally) a
-//!    trunk running through the crown swings on a straight line between its
-//!    root and top while the cages of the branches it carries go
-//!    elsewhere; the foliage then lands far from its cages.*
+//!    limb running through the crown swings on a straight line between its
+//!    ends while the cages of the branches it carries go elsewhere; the
+//!    foliage then lands far from its cages.* The trunk alone keeps to its
+//!    ends: its lower nodes sit in the bottom of the crown cage, which the
+//!    foliage fit pulls down, and following it folded the bole into a J
+//!    below the root.
 //! 8. **Foliage fit** (our addition, [`SketchOptions::foliage_passes`]
 //!    passes, multiscale closed sketches only). *The paper maps the crown's
 //!    convex silhouette onto the sketch, but an artist draws the outline of

@@ -39,9 +39,10 @@ pub struct SketchOptions {
     /// Branch pruning (§5.4.2): cages mostly outside the sketch wilt with
     /// their chains (default true; multiscale only).
     pub prune: bool,
-    /// How strongly a chain's inner nodes follow the cage field (the mean
+    /// How strongly a branch's inner nodes follow the cage field (the mean
     /// value combination of the cage holding each node), relative to the
-    /// Laplacian term of Eq. 1 (default 1). 0 is the paper taken
+    /// Laplacian term of Eq. 1 (default 1; the trunk's inner nodes follow
+    /// only its ends). 0 is the paper taken
     /// literally — only the tip is constrained — which lets a long chain
     /// carrying many others (a trunk through the crown) swing on a straight
     /// line between its ends while its children's cages go elsewhere.

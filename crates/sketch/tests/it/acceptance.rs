@@ -134,6 +134,30 @@ fn an_oversketch_lifts_the_top_of_the_maple() {
     );
 }
 
+/// Regression: the trunk's lower nodes followed the bottom of the crown
+/// cage, which the foliage fit pulls down toward the heart's lower tip: a
+/// maple's trunk ended 0.25 m below its root and its bole folded into a J.
+/// The trunk now bends between its ends only: no node of it ends below
+/// the root.
+#[test]
+fn a_sketched_trunk_stays_above_its_root() {
+    let f = fixture(Preset::Maple);
+    let file = example("heart");
+    let options = SketchOptions::default().with_fit(file.fit);
+    let plan = SketchPlan::new(&f.tree, &f.analysis, &file.view, &file.sketch, &options).unwrap();
+    let end = Sketcher::new(&plan).frame(1.0);
+    let root = end.positions[0].y;
+    let trunk = f.analysis.chains().iter().find(|c| c.order == 1).unwrap();
+    for &n in &trunk.nodes {
+        let y = end.positions[n as usize].y;
+        assert!(
+            y >= root,
+            "trunk node {n} ends {:.3} m below the root",
+            root - y
+        );
+    }
+}
+
 /// The crescent has a deep concavity: cages folded into it are pruned and
 /// their chains wilt to nothing, still attached.
 #[test]

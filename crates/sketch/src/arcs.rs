@@ -109,7 +109,7 @@ impl Arcs {
                 None => Quat::IDENTITY,
             };
         }
-        arcs.thicken = thickening(plan, &end);
+        arcs.thicken = thickening(plan, &end, &arcs.node_chain);
         arcs.clock = vec![0.0; arcs.thicken.len()];
         arcs.end = end;
         arcs
@@ -178,11 +178,10 @@ fn node_chains(plan: &SketchPlan) -> Vec<u32> {
 /// Per chain: its arc length at the end over at rest, capped so that its
 /// base ends no thicker than its parent at its junction (unless it scales
 /// no more than its parent). Parents first, so each cap sees its parent's
-/// final radius.
-fn thickening(plan: &SketchPlan, end: &[Vec3]) -> Vec<f32> {
+/// final radius. `chains`: each node's chain ([`node_chains`]).
+fn thickening(plan: &SketchPlan, end: &[Vec3], chains: &[u32]) -> Vec<f32> {
     let rest = &plan.rest;
     let mut k = vec![1.0f32; plan.chain_ranges.len()];
-    let chains = node_chains(plan);
     for c in parents_first(&plan.chain_parent) {
         let c = c as usize;
         let (a, b) = plan.chain_ranges[c];

@@ -247,12 +247,25 @@ export class Api {
       stream: `${base}/stream`,
       metrics: `${base}/metrics.json`,
       frame: (n) => `${base}/frames/${n}.glb`,
+      frameAt: `${base}/frame.glb`,
     };
   }
 
   /** `GET /v1/jobs/{id}/stream`: the Response whose body is the delta stream. */
   jobStream(id, signal) {
     return this.request('GET', `/v1/jobs/${encodeURIComponent(id)}/stream`, { signal });
+  }
+
+  /**
+   * `GET /v1/jobs/{id}/stream?t=`: the Response whose body is a one-frame
+   * delta stream of the instant `t` in [0, 1] based on the job's first
+   * frame (a succeeded job only; rendered on request); with `header:
+   * false`, only its frame record, which decodes after the job's own
+   * stream header (`decodeFramesAt`).
+   */
+  jobStreamAt(id, t, { header = true, signal } = {}) {
+    const query = header ? { t } : { t, header: 'false' };
+    return this.request('GET', `/v1/jobs/${encodeURIComponent(id)}/stream`, { query, signal });
   }
 
   /**

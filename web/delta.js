@@ -463,7 +463,7 @@ export class Decoder {
     if (kind === KIND_HEADER && this.state === 'header') {
       const header = this.parseHeader(r);
       this.state = 'frames';
-      return { type: 'header', header };
+      return { type: 'header', header, base: this.base() };
     }
     if (kind === KIND_FRAME && this.state === 'frames') return { type: 'frame', frame: this.parseFrame(r) };
     if (kind === KIND_END && this.state === 'frames') {
@@ -604,6 +604,21 @@ export class Decoder {
     return this.header;
   }
 
+  /**
+   * The decoder's state right after the header (its base grid
+   * coordinates copied): {@link decodeFramesAt} continues from it.
+   */
+  base() {
+    return {
+      limits: this.limits,
+      minor: this.minor,
+      preamble: this.preamble,
+      header: this.header,
+      maxFramePayload: this.maxFramePayload,
+      q: this.q.map((axes) => axes.map((a) => a.slice())),
+    };
+  }
+
   /** Positions of mesh `m` from the grid coordinates, as the spec defines. */
   positions(m) {
     const [xs, ys, zs] = this.q[m];
@@ -684,6 +699,36 @@ export async function* decodeStream(source, limits = {}) {
   }
   yield* decoder.events();
   decoder.finish();
+}
+
+/**
+ * Decodes frame records that follow a header decoded before — `base` is
+ * the `base` of that header event — without its bytes: e.g. the frame
+ * record of `GET /v1/jobs/{id}/stream?t=T&header=false`
+ * (`application/vnd.treemorph.delta-frame`), encoded against the job's
+ * own stream header. Returns the frames; throws a DeltaError when the
+ * bytes are not whole frame records.
+ */
+export function decodeFramesAt(base, bytes) {
+  const decoder = new Decoder(base.limits);
+  Object.assign(decoder, {
+    state: 'frames',
+    minor: base.minor,
+    preamble: base.preamble,
+    header: base.header,
+    maxFramePayload: base.maxFramePayload,
+    q: base.q.map((axes) => axes.map((a) => a.slice())),
+  });
+  decoder.push(bytes);
+  const frames = [];
+  for (const e of decoder.events()) {
+    if (e.type !== 'frame') throw new DeltaError('corrupt', `a ${e.type} record where only frame records belong`);
+    frames.push(e.frame);
+  }
+  if (decoder.end !== decoder.start) {
+    throw new DeltaError('truncated', `frame records truncated after ${frames.length} frames`, { frames: frames.length });
+  }
+  return frames;
 }
 
 /** Decodes a whole stream held in memory: `{ header, frames }`. */

@@ -19,7 +19,7 @@
  */
 
 import { ApiError, TERMINAL_STATUSES } from './api.js';
-import { decodeStream } from './delta.js';
+import { DeltaError, decodeFramesAt, decodeStream } from './delta.js';
 import { StreamPlayer } from './player.js';
 
 /** How many times in a row a dropped connection is retried. */
@@ -165,6 +165,22 @@ export class JobRun {
         }
       }
     }
+  }
+
+  /**
+   * The instant `t` in [0, 1] of a succeeded job, for the current player:
+   * the server renders its frame record against the job's own stream
+   * header (`stream?t=&header=false`), which the player holds, and it is
+   * decoded from the player's base. Resolves to `{header, frame}` (see
+   * scrub.js).
+   */
+  async instantAt(t, signal) {
+    const player = this.player;
+    if (!player || !player.base) throw new Error('no stream header to decode the instant with');
+    const response = await this.api.jobStreamAt(this.job.id, t, { header: false, signal });
+    const frames = decodeFramesAt(player.base, new Uint8Array(await response.arrayBuffer()));
+    if (frames.length !== 1) throw new DeltaError('corrupt', `the instant ${t} came as ${frames.length} frames, not one`);
+    return { header: player.header, frame: frames[0] };
   }
 
   newPlayer() {

@@ -171,8 +171,20 @@ function showPlayer(player, { frame = true } = {}) {
   if (sketchView) viewer.setView(sketchView);
   showing = 'player';
   timeline.attach(player);
+  offerInstants();
   $('show-result').hidden = true;
   caption(run ? describe(run.request) : '');
+}
+
+/**
+ * Lets the timeline fetch instants between frames once the job it plays
+ * has succeeded (the server renders none before).
+ */
+function offerInstants() {
+  const current = run;
+  if (current && current.player && timeline.player === current.player && current.job?.status === 'succeeded') {
+    timeline.setInstantSource((t) => current.instantAt(t));
+  }
 }
 
 // ---- trees panel ----
@@ -371,10 +383,12 @@ function renderDownloads(job) {
   if (((job.frames_ready ?? 0) > 0 && job.status === 'running') || job.status === 'succeeded') {
     const a = h('a', { href: '#', download: '' }, 'Current frame (.glb)');
     a.addEventListener('click', (e) => {
-      const i = Math.max(0, Number($('scrub').value) || 0);
-      const path = paths.frame(i);
+      // Between frames, the instant under the cursor (rendered on request).
+      const t = timeline.instant;
+      const i = Math.max(0, Math.floor(Number($('scrub').value) || 0));
+      const path = t !== null && job.status === 'succeeded' ? `${paths.frameAt}?t=${t}` : paths.frame(i);
       a.href = api.url(path);
-      a.download = `treemorph-${job.id}-frame-${i}.glb`;
+      a.download = t !== null ? `treemorph-${job.id}-t-${t.toFixed(4)}.glb` : `treemorph-${job.id}-frame-${i}.glb`;
       download(e, path, a.download);
     });
     items.push(h('li', {}, a));
@@ -422,6 +436,7 @@ async function startJob(request) {
     onError: (e, context) => report(e, `${request.kind} job: ${context}`),
     onEnd: (job) => {
       if (run !== thisRun) return;
+      if (job.status === 'succeeded') offerInstants();
       if (job.status === 'failed') report(job.error ? new ApiError(0, job.error.code, job.error.message) : new Error('the job failed'), `${job.kind} job ${job.id}`);
       status(`The ${job.kind} job ${job.status}.`);
     },

@@ -82,8 +82,9 @@ export class FrameStore {
 }
 
 /**
- * The playback clock. `position` is a fractional frame index; the frame
- * shown is its floor.
+ * The playback clock. `position` is a fractional frame index; the stream
+ * frame shown is its floor (a paused timeline between frames shows the
+ * instant itself, see `scrub.js`).
  */
 export class Playback {
   /**
@@ -98,9 +99,9 @@ export class Playback {
     this.position = 0;
   }
 
-  /** Jumps to frame `i` (scrubbing). */
+  /** Jumps to position `i`, a fractional frame index (scrubbing). */
   seek(i) {
-    this.position = Math.max(0, Math.floor(i));
+    this.position = Math.max(0, Number(i) || 0);
   }
 
   /**
@@ -242,7 +243,11 @@ export class StreamPlayer {
    * @returns {string} The event type.
    */
   handle(event) {
-    if (event.type === 'header') this.setUp(event.header);
+    if (event.type === 'header') {
+      this.setUp(event.header);
+      /** The decoder's state after the header, for instants between frames (`decodeFramesAt`). */
+      this.base = event.base || null;
+    }
     else if (event.type === 'frame') this.store.add(event.frame);
     else if (event.type === 'end') this.complete = true;
     return event.type;
@@ -357,19 +362,50 @@ export class StreamPlayer {
     const frame = this.store ? this.store.get(i) : null;
     if (!frame) return null;
     if (frame.index !== this.shown) {
-      let m = 0;
-      for (let k = 0; k < this.header.meshes.length; k++) {
-        const spec = this.header.meshes[k];
-        if (spec.vertexCount === 0 || spec.indices.length === 0) continue;
-        const { geometry } = this.meshes[m++];
-        geometry.attributes.position.array.set(frame.positions[k]);
-        geometry.attributes.position.needsUpdate = true;
-        geometry.computeVertexNormals();
-      }
+      this.copyPositions(frame.positions);
       this.shown = frame.index;
     }
     this.applyBlend(frame.leafBlend);
     return frame;
+  }
+
+  /**
+   * Whether a frame decoded with `header` (e.g. one instant fetched with
+   * `stream?t=`) fits this player's meshes: the same meshes with the same
+   * vertex and index counts.
+   */
+  fits(header) {
+    if (!this.header || !header || header.meshes.length !== this.header.meshes.length) return false;
+    return header.meshes.every((m, k) => {
+      const own = this.header.meshes[k];
+      return m.name === own.name && m.vertexCount === own.vertexCount && m.indices.length === own.indices.length;
+    });
+  }
+
+  /**
+   * Shows a frame that is not in the stream (an instant between its
+   * frames, decoded with a header that {@link StreamPlayer.fits}); returns
+   * false, showing nothing, when it does not fit.
+   */
+  showInstant(header, frame) {
+    if (!this.fits(header)) return false;
+    this.copyPositions(frame.positions);
+    this.shown = -2; // no stream frame: the next show(i) copies again
+    this.applyBlend(frame.leafBlend);
+    return true;
+  }
+
+  /** Puts per-header-mesh positions into the geometries (empty meshes have none) and recomputes normals. */
+  copyPositions(positions) {
+    let m = 0;
+    for (let k = 0; k < this.header.meshes.length; k++) {
+      const spec = this.header.meshes[k];
+      if (spec.vertexCount === 0 || spec.indices.length === 0) continue;
+      const { geometry } = this.meshes[m++];
+      geometry.attributes.position.array.set(positions[k]);
+      geometry.attributes.position.needsUpdate = true;
+      geometry.computeVertexNormals();
+    }
   }
 
   /** Frees GPU resources. */

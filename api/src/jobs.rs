@@ -677,6 +677,12 @@ pub struct JobLinks {
     /// this field).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame_at: Option<String>,
+    /// URL template of the frame at any instant as a one-frame delta
+    /// stream with the job's own stream header (what a player scrubbing
+    /// between the stream's frames asks for): replace `{t}` by a number in
+    /// [0, 1] (absent from servers older than this field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream_at: Option<String>,
 }
 
 /// A finished job's result.

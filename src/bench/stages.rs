@@ -273,7 +273,7 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
         });
         let (branches, leaves) = meshes.mesh(&frame).expect("mesh");
         let instant_target = [50.0, 150.0][k];
-        rows.push(instant_row(
+        rows.extend(instant_rows(
             quick,
             (&a, &aa),
             (&b, &ab),
@@ -296,23 +296,28 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
     }
 }
 
-/// `GET /v1/jobs/{id}/frame.glb?t=` without HTTP: the frame at an instant
-/// of a 60-frame morph with default options, from trees whose analysis is
-/// cached (as the service keeps them): planning, the probes and one
-/// per-frame GLB.
-fn instant_row(
+/// `GET /v1/jobs/{id}/frame.glb?t=` and `stream?t=` without HTTP: the
+/// frame at an instant of a 60-frame morph with default options, from
+/// trees whose analysis is cached (as the service keeps them). Cold, the
+/// runner plans and probes first; with the plan kept (the job ran in this
+/// process, or an instant of it was asked before), it renders one
+/// per-frame GLB, one one-frame delta stream, or that stream's frame
+/// record (what the web viewer fetches when scrubbing between frames).
+fn instant_rows(
     quick: bool,
     (a, aa): (&Tree, &treemorph_analysis::Analysis),
     (b, ab): (&Tree, &treemorph_analysis::Analysis),
     target: f64,
     (input, size): (&str, &str),
-) -> Row {
+) -> [Row; 4] {
     use std::collections::HashMap;
     use std::sync::Arc;
 
     use treemorph_api::jobs::{JobRequest, MorphRequest};
 
-    use crate::pipeline::{InputTree, JobInput, JobSpec, Limits, PipelineRunner, Runner};
+    use crate::pipeline::{
+        InputTree, JobInput, JobSpec, Limits, PipelineRunner, Runner, StreamPart,
+    };
     let trees = HashMap::from([
         (
             "a".to_owned(),
@@ -336,23 +341,48 @@ fn instant_row(
         spec: &spec,
         trees: &trees,
     };
-    let runner = PipelineRunner::default();
-    let mut bytes = 0;
-    let timing = measure(quick, || {
-        bytes = runner.frame_at(&job, 0.375).expect("an instant").len();
-    });
-    row(
-        "frame at an instant",
-        input.to_owned(),
-        size.to_owned(),
-        timing,
-        String::new(),
-        Some(target),
-        format!(
-            "plan + probes + one GLB of {:.1} MB (frame.glb?t=)",
-            bytes as f64 / 1e6
+    let one = |name: &str, what: &str, render: &dyn Fn() -> Vec<u8>| {
+        let mut bytes = 0;
+        let timing = measure(quick, || bytes = render().len());
+        row(
+            name,
+            input.to_owned(),
+            size.to_owned(),
+            timing,
+            String::new(),
+            Some(target),
+            format!("{what} of {:.2} MB", bytes as f64 / 1e6),
+        )
+    };
+    // Cold: a new runner plans each time. Warm: the runner keeps the plan
+    // (after the job ran in this process, or after its first instant).
+    let kept = PipelineRunner::default();
+    let at = |runner: &PipelineRunner, part: Option<StreamPart>| match part {
+        None => runner.frame_at(&job, 0.375).expect("an instant"),
+        Some(part) => runner.stream_at(&job, 0.375, part).expect("an instant"),
+    };
+    [
+        one(
+            "frame at an instant",
+            "plan + probes + one GLB (frame.glb?t=)",
+            &|| at(&PipelineRunner::default(), None),
         ),
-    )
+        one(
+            "frame at an instant, plan kept",
+            "one GLB (frame.glb?t=)",
+            &|| at(&kept, None),
+        ),
+        one(
+            "stream at an instant, plan kept",
+            "a one-frame stream (stream?t=)",
+            &|| at(&kept, Some(StreamPart::Whole)),
+        ),
+        one(
+            "frame record at an instant, plan kept",
+            "its frame record (stream?t=&header=false)",
+            &|| at(&kept, Some(StreamPart::Frame)),
+        ),
+    ]
 }
 
 /// The sketch paper's Table 1 input sizes (5,031 branches / 3,830 leaves)

@@ -200,6 +200,7 @@ impl JobRow {
                             .frame_glbs
                             .then(|| format!("/v1/jobs/{id}/frames/{{n}}.glb")),
                         frame_at: Some(format!("/v1/jobs/{id}/frame.glb?t={{t}}")),
+                        stream_at: Some(format!("/v1/jobs/{id}/stream?t={{t}}")),
                     },
                 }),
                 _ => None,

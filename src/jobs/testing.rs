@@ -32,7 +32,8 @@ use treemorph_api::delta::{
 use treemorph_api::jobs::JobRequest;
 
 use crate::pipeline::{
-    FrameOutput, JobError, JobInput, JobOutcome, JobSink, JobSpec, Limits, Runner, stage,
+    FrameOutput, JobError, JobInput, JobOutcome, JobSink, JobSpec, Limits, Runner, StreamPart,
+    stage,
 };
 
 /// What the test runner does for a request.
@@ -274,6 +275,15 @@ pub fn instant_glb(t: f32) -> Vec<u8> {
     v
 }
 
+/// What [`TestRunner`] renders as a delta stream at instant `t`: not a
+/// stream, but bytes that name the instant.
+pub fn instant_stream(t: f32) -> Vec<u8> {
+    let mut v = b"TMD\0".to_vec();
+    v.extend_from_slice(&t.to_bits().to_le_bytes());
+    v.extend_from_slice(b"instant");
+    v
+}
+
 impl Runner for TestRunner {
     fn renders_on_request(&self) -> bool {
         self.plan_first
@@ -287,6 +297,20 @@ impl Runner for TestRunner {
             std::thread::sleep(delay);
         }
         Ok(instant_glb(t))
+    }
+
+    /// As [`TestRunner::frame_at`], counted with it.
+    fn stream_at(
+        &self,
+        input: &JobInput<'_>,
+        t: f32,
+        part: StreamPart,
+    ) -> Result<Vec<u8>, JobError> {
+        let mut bytes = self.frame_at(input, t).map(|_| instant_stream(t))?;
+        if part == StreamPart::Frame {
+            bytes.extend_from_slice(b" frame");
+        }
+        Ok(bytes)
     }
 
     fn check(&self, request: &JobRequest, limits: &Limits) -> Result<JobSpec, JobError> {

@@ -55,6 +55,7 @@ use super::{AppState, Owner, blob, resample};
 use crate::error::ApiError;
 use crate::jobs::queue::{self, Cancel, Created, JobRow, NewJob};
 use crate::jobs::retention;
+use crate::pipeline::StreamPart;
 use crate::store::new_id;
 
 /// The routes of this module.
@@ -413,23 +414,81 @@ pub async fn frame_at(
     ApiQuery(query): ApiQuery<InstantQuery>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let t = crate::pipeline::check_instant(query.t)?;
     let row = find(&state, &owner, &id).await?;
-    let prefix = succeeded_prefix(&row, "frame")?;
-    let key = format!("{prefix}/at/{:08x}", t.to_bits());
+    instant(&state, &row, query.t, Instant::Glb, &headers).await
+}
+
+/// What an instant is rendered as.
+#[derive(Clone, Copy, Debug)]
+pub enum Instant {
+    /// `frame.glb?t=`: the per-frame GLB.
+    Glb,
+    /// `stream?t=`: a delta stream of the one frame, or (`header=false`)
+    /// its frame record alone.
+    Stream(StreamPart),
+}
+
+/// The media type of a frame record without its stream
+/// (`stream?t=&header=false`): it decodes only after the job's own stream
+/// header.
+pub const FRAME_RECORD_MEDIA_TYPE: &str = "application/vnd.treemorph.delta-frame";
+
+impl Instant {
+    fn content_type(self) -> &'static str {
+        match self {
+            Instant::Glb => "model/gltf-binary",
+            Instant::Stream(StreamPart::Whole) => treemorph_api::delta::MEDIA_TYPE,
+            Instant::Stream(StreamPart::Frame) => FRAME_RECORD_MEDIA_TYPE,
+        }
+    }
+
+    /// The render cache key (and ETag source) under the job's attempt.
+    fn key(self, prefix: &str, t: f32) -> String {
+        match self {
+            Instant::Glb => format!("{prefix}/at/{:08x}", t.to_bits()),
+            Instant::Stream(StreamPart::Whole) => format!("{prefix}/stream-at/{:08x}", t.to_bits()),
+            Instant::Stream(StreamPart::Frame) => {
+                format!("{prefix}/stream-frame-at/{:08x}", t.to_bits())
+            }
+        }
+    }
+}
+
+/// Serves `row`'s frame at `t` as `what`, rendered on request and kept in
+/// the render cache: 422 for a bad `t`, 409 or 404 for a job that has not
+/// succeeded.
+pub async fn instant(
+    state: &AppState,
+    row: &JobRow,
+    t: f32,
+    what: Instant,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    let t = crate::pipeline::check_instant(t)?;
+    let prefix = succeeded_prefix(row, "frame")?;
+    let key = what.key(&prefix, t);
     let render = state
         .renders
-        .get_or_render(&key, render_at(&state, &row, t));
-    serve_rendered(&headers, &key, "model/gltf-binary", render).await
+        .get_or_render(&key, render_at(state, row, t, what));
+    serve_rendered(headers, &key, what.content_type(), render).await
 }
 
 /// Renders `row`'s frame at `t` ([`resample::on_inputs`]); the caller
 /// keeps it in the render cache ([`super::renders`]).
-async fn render_at(state: &AppState, row: &JobRow, t: f32) -> Result<Vec<u8>, ApiError> {
+async fn render_at(
+    state: &AppState,
+    row: &JobRow,
+    t: f32,
+    what: Instant,
+) -> Result<Vec<u8>, ApiError> {
     resample::check_version(row)?;
     let spec =
         crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
-    resample::on_inputs(state, spec, move |runner, input| runner.frame_at(input, t)).await
+    resample::on_inputs(state, spec, move |runner, input| match what {
+        Instant::Glb => runner.frame_at(input, t),
+        Instant::Stream(part) => runner.stream_at(input, t, part),
+    })
+    .await
 }
 
 /// Serves a re-sampled whole-sequence file of a succeeded job: 409 or 404
@@ -539,7 +598,7 @@ pub async fn frame(
     let t = crate::pipeline::frame_instant(n, row.frames);
     let render = state
         .renders
-        .get_or_render(&key, render_at(&state, &row, t));
+        .get_or_render(&key, render_at(&state, &row, t, Instant::Glb));
     serve_rendered(&headers, &key, "model/gltf-binary", render).await
 }
 

@@ -30,6 +30,7 @@ use super::extract::ApiQuery;
 use super::{AppState, Owner, blob};
 use crate::error::ApiError;
 use crate::jobs::queue::{self, JobRow};
+use crate::pipeline::StreamPart;
 
 /// The routes of this module.
 pub fn routes() -> OpenApiRouter<AppState> {
@@ -46,6 +47,17 @@ pub struct StreamQuery {
     /// the job's own stream.
     #[param(minimum = 2)]
     pub frames: Option<u32>,
+    /// The one frame at this instant in [0, 1] of a succeeded job, as a
+    /// stream of that frame with the job's own header (bounds, grid,
+    /// meshes): a player of the job's stream shows it in its own meshes.
+    /// Rendered on request; not with `frames`.
+    #[param(minimum = 0.0, maximum = 1.0)]
+    pub t: Option<f32>,
+    /// With `t`: `false` answers the frame record alone
+    /// (`application/vnd.treemorph.delta-frame`), encoded against the
+    /// job's own stream header, for a client that holds that header (a
+    /// player scrubbing the job: a fraction of the bytes). Default `true`.
+    pub header: Option<bool>,
 }
 
 /// Get the delta stream: live while the job runs, complete afterwards.
@@ -61,16 +73,16 @@ pub struct StreamQuery {
         ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy (finished jobs)"),
     ),
     responses(
-        (status = 200, description = "The stream (chunked and live while the job runs)",
+        (status = 200, description = "The stream (chunked and live while the job runs); with `t` and `header=false`, one frame record (`application/vnd.treemorph.delta-frame`)",
             content_type = "application/vnd.treemorph.delta", body = [u8]),
         (status = 206, description = "A byte range of a finished stream",
             content_type = "application/vnd.treemorph.delta", body = [u8]),
         (status = 304, description = "Not modified"),
         (status = 404, description = "No such job, the job failed, or the stream was not requested (`not_found`)", body = treemorph_api::ErrorBody),
-        (status = 409, description = "`frames` asked of a job that has not succeeded yet (`not_ready`)", body = treemorph_api::ErrorBody),
+        (status = 409, description = "`frames` or `t` asked of a job that has not succeeded yet (`not_ready`)", body = treemorph_api::ErrorBody),
         (status = 410, description = "The job can no longer be re-sampled (`plan_outdated`); run it again", body = treemorph_api::ErrorBody),
         (status = 416, description = "Bad range (`range_not_satisfiable`)", body = treemorph_api::ErrorBody),
-        (status = 422, description = "Bad `frames` (`invalid_request`)", body = treemorph_api::ErrorBody),
+        (status = 422, description = "Bad `frames`, `t` or `header`, both `frames` and `t`, or `header` without `t` (`invalid_request`)", body = treemorph_api::ErrorBody),
     )
 )]
 pub async fn stream(
@@ -82,6 +94,23 @@ pub async fn stream(
 ) -> Result<Response, ApiError> {
     let watcher = JobWatch::new(&state, &owner, &id);
     let row = super::jobs::find(&state, &owner, &id).await?;
+    if let Some(t) = query.t {
+        if query.frames.is_some() {
+            return Err(ApiError::invalid(
+                "ask for frames (a re-sampled sequence) or t (one instant), not both",
+            ));
+        }
+        let part = if query.header.unwrap_or(true) {
+            StreamPart::Whole
+        } else {
+            StreamPart::Frame
+        };
+        let what = super::jobs::Instant::Stream(part);
+        return super::jobs::instant(&state, &row, t, what, &headers).await;
+    }
+    if query.header.is_some() {
+        return Err(ApiError::invalid("header applies to one instant (t) only"));
+    }
     if let Some(n) = query.frames {
         let what = super::resample::Resample::Frames(n);
         return super::jobs::resampled(&state, &row, what, MEDIA_TYPE, &headers).await;

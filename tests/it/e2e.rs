@@ -49,13 +49,14 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
         .await
         .unwrap();
     assert_eq!(metrics["mtsw"].as_array().unwrap().len(), 10, "{metrics}");
-    let stream = app
+    let stream_bytes = app
         .get(&format!("/v1/jobs/{id}/stream"))
         .await
         .bytes()
         .await
         .unwrap();
-    let (_, frames) = treemorph_api::delta::decode_all(&stream, &Default::default()).unwrap();
+    let (header, frames) =
+        treemorph_api::delta::decode_all(&stream_bytes, &Default::default()).unwrap();
     assert_eq!(frames.len(), 10);
     let glb = app
         .get(&format!("/v1/jobs/{id}/frames/0.glb"))
@@ -85,6 +86,79 @@ async fn a_real_morph_and_sketch_run_with_the_default_runner() {
     let between = between.bytes().await.unwrap();
     assert_eq!(&between[..4], b"glTF");
     assert_ne!(between, frame_4);
+    // The instant as a one-frame stream with the job's own header (what
+    // the viewer scrubs with): at frame 4's instant, frame 4 exactly.
+    let at = app
+        .get(&format!("/v1/jobs/{id}/stream?t={}", 4.0f32 / 9.0))
+        .await;
+    assert_eq!(at.status(), 200);
+    let at = at.bytes().await.unwrap();
+    let (at_header, at_frames) =
+        treemorph_api::delta::decode_all(&at, &Default::default()).unwrap();
+    assert_eq!(at_frames.len(), 1);
+    assert_eq!(
+        (at_header.bounds, at_header.grid),
+        (header.bounds, header.grid)
+    );
+    assert_eq!(at_header.meshes.len(), header.meshes.len());
+    for (a, b) in at_header.meshes.iter().zip(&header.meshes) {
+        assert_eq!(
+            (&a.indices, &a.uvs),
+            (&b.indices, &b.uvs),
+            "mesh {}",
+            b.name
+        );
+    }
+    assert_eq!(at_frames[0].positions, frames[4].positions);
+    assert_eq!(at_frames[0].t, frames[4].t);
+    assert_eq!(at_frames[0].leaf_blend, frames[4].leaf_blend);
+    // Its frame record alone decodes after the job's own header, to the
+    // same frame (what the viewer fetches when it scrubs).
+    let record = app
+        .get(&format!(
+            "/v1/jobs/{id}/stream?t={}&header=false",
+            4.0f32 / 9.0
+        ))
+        .await;
+    assert_eq!(record.status(), 200);
+    assert_eq!(
+        record.headers()["content-type"],
+        "application/vnd.treemorph.delta-frame"
+    );
+    let record = record.bytes().await.unwrap();
+    assert!(
+        record.len() * 4 < at.len(),
+        "{} of {} bytes",
+        record.len(),
+        at.len()
+    );
+    // The preamble (8 bytes), then the header record: a 12-byte prefix
+    // with the stored payload length at 4..8, the payload, a 4-byte CRC.
+    let stored = u32::from_le_bytes(stream_bytes[12..16].try_into().unwrap()) as usize;
+    let header_len = 8 + 12 + stored + 4;
+    let mut decoder = treemorph_api::delta::Decoder::new(&Default::default());
+    decoder.push(&stream_bytes[..header_len]);
+    decoder.push(&record);
+    let mut decoded = Vec::new();
+    while let Some(event) = decoder.next_event().unwrap() {
+        decoded.push(event);
+    }
+    match &decoded[..] {
+        [
+            treemorph_api::delta::Event::Header(h),
+            treemorph_api::delta::Event::Frame(f),
+        ] => {
+            assert_eq!(h.frame_count, 10, "not the job's header");
+            assert_eq!(f.positions, frames[4].positions);
+        }
+        other => panic!("{} events after the job's header", other.len()),
+    }
+    let between = app.get(&format!("/v1/jobs/{id}/stream?t=0.375")).await;
+    let between = between.bytes().await.unwrap();
+    let (_, between) = treemorph_api::delta::decode_all(&between, &Default::default()).unwrap();
+    assert_eq!(between[0].t, 0.375);
+    assert_ne!(between[0].positions, frames[3].positions);
+    assert_ne!(between[0].positions, frames[4].positions);
     // Re-sampled sequences, run again on request.
     let stream = app
         .get(&format!("/v1/jobs/{id}/stream?frames=4"))

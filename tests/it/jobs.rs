@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde_json::{Value, json};
-use treemorph::jobs::testing::{TestBehaviour, TestRunner, frame_glb, instant_glb};
+use treemorph::jobs::testing::{TestBehaviour, TestRunner, frame_glb, instant_glb, instant_stream};
 use treemorph_api::ErrorCode;
 
 use crate::common::{error_code, spawn, spawn_with};
@@ -608,6 +608,88 @@ async fn frames_render_at_any_instant_on_request() {
         .get_json(&format!("/v1/jobs/{id}/frame.glb?t=0.5"))
         .await;
     assert_eq!((s, error_code(&e)), (404, "not_found"));
+    app.stop().await;
+}
+
+/// `GET /v1/jobs/{id}/stream?t=`: the frame at any instant as a one-frame
+/// stream, rendered on request like `frame.glb?t=` and cached apart from
+/// it; `t` with `frames`, or a bad `t`, is 422; unfinished jobs 409.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn streams_render_at_any_instant_on_request() {
+    let runner = Arc::new(TestRunner::slow(Duration::from_millis(30)));
+    let app = spawn_with(runner.clone(), |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 5).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    let (s, e) = app.get_json(&format!("/v1/jobs/{id}/stream?t=0.5")).await;
+    assert_eq!((s, error_code(&e)), (409, "not_ready"));
+    let done = app.wait_status(&id, "succeeded").await;
+    assert_eq!(
+        done["result"]["links"]["stream_at"],
+        format!("/v1/jobs/{id}/stream?t={{t}}"),
+        "{done}"
+    );
+
+    let r = app.get(&format!("/v1/jobs/{id}/stream?t=0.375")).await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(
+        r.headers()["content-type"],
+        treemorph_api::delta::MEDIA_TYPE
+    );
+    let etag = r.headers()["etag"].to_str().unwrap().to_owned();
+    assert_eq!(r.bytes().await.unwrap(), instant_stream(0.375));
+    let glb = app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.375")).await;
+    assert_ne!(glb.headers()["etag"].to_str().unwrap(), etag);
+    assert_eq!(glb.bytes().await.unwrap(), instant_glb(0.375));
+    assert_eq!(
+        runner.instants(),
+        2,
+        "the stream and the GLB share a cache entry"
+    );
+    let again = app
+        .client
+        .get(app.url(&format!("/v1/jobs/{id}/stream?t=0.375")))
+        .header("if-none-match", &etag)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(again.status(), 304);
+    assert_eq!(runner.instants(), 2, "a cached instant was rendered again");
+
+    // The frame record alone: its own media type and cache entry.
+    let r = app
+        .get(&format!("/v1/jobs/{id}/stream?t=0.375&header=false"))
+        .await;
+    assert_eq!(r.status(), 200);
+    assert_eq!(
+        r.headers()["content-type"],
+        "application/vnd.treemorph.delta-frame"
+    );
+    assert_ne!(r.headers()["etag"].to_str().unwrap(), etag);
+    assert_eq!(
+        r.bytes().await.unwrap(),
+        [&instant_stream(0.375)[..], b" frame"].concat()
+    );
+    assert_eq!(runner.instants(), 3);
+    let whole = app
+        .get(&format!("/v1/jobs/{id}/stream?t=0.375&header=true"))
+        .await;
+    assert_eq!(whole.headers()["etag"].to_str().unwrap(), etag);
+
+    for bad in [
+        "?t=",
+        "?t=1.5",
+        "?t=-0.1",
+        "?t=abc",
+        "?t=NaN",
+        "?t=0.5&frames=4",
+        "?t=0.5&header=no",
+        "?header=false",
+        "?frames=4&header=false",
+    ] {
+        let (s, e) = app.get_json(&format!("/v1/jobs/{id}/stream{bad}")).await;
+        assert_eq!((s, error_code(&e)), (422, "invalid_request"), "{bad}: {e}");
+    }
     app.stop().await;
 }
 

@@ -27,7 +27,9 @@
 // two small trees (the view is not blank); upload one's GLB by drag and
 // drop; morph one into the other (the timeline's max and value advance, the
 // canvas is not blank, first and last frames differ, with
-// --expect-streaming frames were shown before the job ended); download
+// --expect-streaming frames were shown before the job ended); scrub half way
+// between two frames (the server renders that instant: it is neither frame
+// and lies between them); download
 // animation.glb through its link; draw a closed diamond around the crown on
 // the sketch pad (the NDC and view sent are checked) and run the sketch job
 // to completion; shrink the window to 420 px. It exits non-zero with a
@@ -415,6 +417,63 @@ async function test(opts) {
     log(`first vs last frame: ${(diff.differ * 100).toFixed(1)}% of pixels differ; last frame ${(lastStats.nonBackground * 100).toFixed(1)}% non-background`);
     expect(lastStats.nonBackground > 0.001, 'the last frame looks blank');
     expect(diff.differ > 0.0005, 'the first and last frames look the same: nothing moved');
+
+    begin('scrubbing between frames');
+    // Half way between frames 2 and 3 (0-based 1 and 2): the server renders
+    // the instant, which is neither frame.
+    const between = await page.evaluate(async () => {
+      const tl = window.treemorph.timeline;
+      const player = tl.player;
+      const scrub = document.getElementById('scrub');
+      const positions = () => player.meshes.map((m) => Array.from(m.geometry.attributes.position.array));
+      tl.scrubTo(1);
+      const a = positions();
+      tl.scrubTo(2);
+      const b = positions();
+      scrub.value = '1.5';
+      scrub.dispatchEvent(new Event('input'));
+      const wanted = tl.instant;
+      const deadline = Date.now() + 60_000;
+      while (tl.shownInstant !== wanted && !tl.instantError && Date.now() < deadline) {
+        await new Promise((r) => setTimeout(r, 20));
+      }
+      const c = positions();
+      // Mean distance from the instant's positions to each frame's, and between the frames.
+      const dist = (x, y) => {
+        let sum = 0;
+        let n = 0;
+        for (let m = 0; m < x.length; m++)
+          for (let i = 0; i < x[m].length; i += 3) {
+            sum += Math.hypot(x[m][i] - y[m][i], x[m][i + 1] - y[m][i + 1], x[m][i + 2] - y[m][i + 2]);
+            n += 1;
+          }
+        return sum / Math.max(1, n);
+      };
+      return {
+        wanted,
+        shown: tl.shownInstant,
+        error: tl.instantError ? String(tl.instantError.message) : null,
+        label: document.getElementById('frame-label').textContent,
+        value: Number(scrub.value),
+        toA: dist(c, a),
+        toB: dist(c, b),
+        ab: dist(a, b),
+        fetches: tl.instants ? tl.instants.fetches : 0,
+      };
+    });
+    log(`instant ${between.wanted} (${between.label}): ${between.toA.toExponential(2)} m from frame 2, ${between.toB.toExponential(2)} m from frame 3, frames ${between.ab.toExponential(2)} m apart`);
+    expect(between.error === null, `the instant between frames failed: ${between.error}`);
+    expect(between.wanted !== null && between.shown === between.wanted, `the instant under the cursor was not shown (wanted ${between.wanted}, shown ${between.shown})`);
+    expect(between.value === 1.5, `the timeline snapped to ${between.value}`);
+    expect(/^t 0\.\d{4} · after frame 2 /.test(between.label), `the label between frames is “${between.label}”`);
+    // Both frames are on the stream's grid, as is the instant: a copy of either would be 0 away.
+    // (Staged timing eases, so the middle instant need not be half way in space.)
+    expect(between.toA > 0 && between.toB > 0, 'the instant between frames is one of the frames');
+    expect(between.toA < between.ab && between.toB < between.ab, 'the instant between frames is farther from them than they are from each other');
+    await shot('morph-between.png', canvas);
+    await page.evaluate(() => window.treemorph.timeline.scrubTo(2));
+    const backLabel = await page.textContent('#frame-label');
+    expect(backLabel.startsWith(`frame 3 / ${opts.frames}`), `back on a frame, the label is “${backLabel}”`);
 
     begin('downloading the animation');
     // Through the link, as a person would (with a key the page fetches it with the header).

@@ -7,7 +7,7 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 
-import { Decoder, DeltaError, MEDIA_TYPE, crc32, decodeAll, decodeStream } from '../delta.js';
+import { Decoder, DeltaError, MEDIA_TYPE, crc32, decodeAll, decodeFramesAt, decodeStream } from '../delta.js';
 
 const fixture = (name) => new URL(`../../api/tests/fixtures/${name}`, import.meta.url);
 const stream = new Uint8Array(readFileSync(fixture('small.tmd')));
@@ -255,3 +255,33 @@ test('the blocks fixture (several blocks, every bit width, zstd) decodes as reco
     assert.deepEqual(events.at(-1), { type: 'end', frames: want.frames.length });
   }
 });
+
+test('decodeFramesAt continues from a header decoded before, without its bytes', () => {
+  const decoder = new Decoder();
+  decoder.push(stream);
+  const header = decoder.nextEvent();
+  assert.equal(header.type, 'header');
+  const headerEnd = decoder.offset;
+  const frames = [];
+  for (let e; (e = decoder.nextEvent()) && e.type === 'frame'; ) frames.push(e.frame);
+  const { frames: whole } = decodeAll(stream);
+  // The records between the header and the end record.
+  const framesEnd = headerEnd + recordsLength(stream, headerEnd, whole.length);
+  const again = decodeFramesAt(header.base, stream.subarray(headerEnd, framesEnd));
+  assert.deepEqual(again, whole);
+  assert.deepEqual(frames, whole, 'the base was taken before the frames and left them alone');
+  // The base is copied: decoding from it twice gives the same frames.
+  assert.deepEqual(decodeFramesAt(header.base, stream.subarray(headerEnd, framesEnd)), whole);
+  assert.throws(() => decodeFramesAt(header.base, stream.subarray(headerEnd)), /end record where only frame records belong/);
+  assert.throws(() => decodeFramesAt(header.base, stream.subarray(headerEnd, framesEnd - 1)), (e) => e.code === 'truncated');
+});
+
+/** Bytes of the first `n` records from `offset` (prefix: kind, codec, 2 spare, stored length u32, raw length u32; then payload and CRC). */
+function recordsLength(bytes, offset, n) {
+  let at = offset;
+  for (let i = 0; i < n; i++) {
+    const view = new DataView(bytes.buffer, bytes.byteOffset + at, 12);
+    at += 12 + view.getUint32(4, true) + 4;
+  }
+  return at - offset;
+}

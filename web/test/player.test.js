@@ -179,3 +179,26 @@ test('Playback without loop stops at the last frame; seek moves the position', (
   p.seek(-2);
   assert.equal(p.tick(0, 12, true), 0);
 });
+
+test('an instant decoded with a fitting header is shown in the player’s meshes; a misfit is refused', () => {
+  const player = play(small);
+  const { header, frames } = decodeAll(small);
+  const last = frames[frames.length - 1];
+  player.show(0);
+  assert.ok(player.fits(header));
+  assert.ok(player.showInstant(header, last));
+  assert.equal(player.shown, -2, 'no stream frame is on screen');
+  assert.equal(player.blend.value, last.leafBlend);
+  player.meshes.forEach(({ geometry }, m) => {
+    assert.deepEqual([...geometry.attributes.position.array], [...last.positions[m]]);
+  });
+  // Back to a stream frame: its positions are copied again.
+  player.show(0);
+  player.meshes.forEach(({ geometry }, m) => {
+    assert.deepEqual([...geometry.attributes.position.array], [...frames[0].positions[m]]);
+  });
+  const other = decodeAll(blocks).header;
+  assert.equal(player.fits(other), false);
+  assert.equal(player.showInstant(other, last), false);
+  assert.equal(player.shown, 0, 'a misfit changed the picture');
+});

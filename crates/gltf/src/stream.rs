@@ -5,7 +5,8 @@
 //! [`treemorph_api::delta`] (format: `api/README.md`):
 //!
 //! - **Header** (written with the first frame, whose meshes are the base
-//!   positions): two meshes, `branches` then `leaves`, with their index
+//!   positions, or on its own from a given frame,
+//!   [`DeltaStreamWriter::write_header`]): two meshes, `branches` then `leaves`, with their index
 //!   buffers, UVs and material groups; the materials and PNG textures; the
 //!   quantisation grid from the animation's bounds
 //!   ([`Grid::for_bounds`], error at most
@@ -186,6 +187,37 @@ impl DeltaStreamWriter {
         self.encoder.as_ref().map(Encoder::header_bytes)
     }
 
+    /// Writes the stream's preamble and header to `out` with `frame`'s
+    /// meshes as the base positions (they also fix the bark UVs), and no
+    /// frame record: the next frame written is frame 0, encoded against
+    /// `frame`. A sequence's own stream has its first frame as the base,
+    /// so a stream of one later instant based on that first frame has the
+    /// sequence's header but for the frame count, and its frame record
+    /// decodes against the sequence's header. Errors:
+    /// [`EncodeError::Usage`] once a header was written.
+    pub fn write_header(&mut self, frame: &Frame, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+        if self.encoder.is_some() {
+            return Err(EncodeError::Usage(
+                "a delta stream has one header, and it is written".into(),
+            ));
+        }
+        check_frame(
+            frame,
+            self.topology.node_count(),
+            self.topology.leaves.len(),
+        )?;
+        let (branches, leaves) = self.meshes.mesh(frame)?;
+        let encoder = start(
+            &mut self.looks,
+            &self.topology,
+            (self.bounds, &self.options),
+            (branches, leaves),
+            out,
+        )?;
+        self.encoder = Some(encoder);
+        Ok(())
+    }
+
     /// The meshers.
     pub fn meshes(&self) -> &FrameMeshes {
         &self.meshes
@@ -214,16 +246,13 @@ impl DeltaStreamWriter {
         let encoder = match &mut self.encoder {
             Some(e) => e,
             None => {
-                let header = header_for(
+                let encoder = start(
                     &mut self.looks,
                     &self.topology,
-                    self.bounds,
-                    &self.options,
-                    branches,
-                    leaves,
-                );
-                let encoder = Encoder::new(header, &self.options.encoder)?;
-                out.extend_from_slice(encoder.header_bytes());
+                    (self.bounds, &self.options),
+                    (branches, leaves),
+                    out,
+                )?;
                 self.encoder.insert(encoder)
             }
         };
@@ -248,6 +277,21 @@ impl DeltaStreamWriter {
         encoder.finish(out)?;
         Ok(())
     }
+}
+
+/// Makes the encoder for the base meshes and writes the stream's first
+/// bytes (preamble and header) to `out`.
+fn start(
+    looks: &mut Looks,
+    topology: &FrameTopology,
+    (bounds, options): ([[f32; 3]; 2], &StreamOptions),
+    (branches, leaves): (&MeshBuffers, &MeshBuffers),
+    out: &mut Vec<u8>,
+) -> Result<Encoder, EncodeError> {
+    let header = header_for(looks, topology, bounds, options, branches, leaves);
+    let encoder = Encoder::new(header, &options.encoder)?;
+    out.extend_from_slice(encoder.header_bytes());
+    Ok(encoder)
 }
 
 /// The stream header for the first frame's meshes.

@@ -27,6 +27,7 @@ use treemorph_api::jobs::JobRequest;
 use treemorph_tree::Tree;
 
 mod error;
+mod plans;
 mod runner;
 mod spec;
 
@@ -220,6 +221,36 @@ pub trait Runner: Send + Sync + 'static {
             "this runner renders no single instants",
         ))
     }
+    /// The job's frame at instant `t` in [0, 1] as a delta stream of that
+    /// one frame, based on the job's frame 0: the header is the job's own
+    /// stream header but for its frame count (1), and the frame record
+    /// decodes against either. So [`StreamPart::Frame`], the record alone,
+    /// is what a player that holds the job's stream needs to show the
+    /// instant in its own meshes; at [`frame_instant`]`(i, n)` it decodes
+    /// to the positions of the job's frame `i`. Runners that cannot render
+    /// single instants refuse with `invalid_job`.
+    fn stream_at(
+        &self,
+        input: &JobInput<'_>,
+        t: f32,
+        part: StreamPart,
+    ) -> Result<Vec<u8>, JobError> {
+        let _ = (input, t, part);
+        Err(JobError::invalid(
+            treemorph_api::ErrorCode::InvalidJob,
+            "this runner renders no single instants as a stream",
+        ))
+    }
+}
+
+/// What of a one-instant delta stream [`Runner::stream_at`] renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StreamPart {
+    /// A stream on its own: header, the frame record, end record.
+    Whole,
+    /// The frame record alone, for a client holding the job's own stream
+    /// header.
+    Frame,
 }
 
 /// The version of what this build renders from a request and its trees.

@@ -45,11 +45,13 @@
 //! published before frame 0, so clients start playing at once), the
 //! per-frame GLB, the animated GLB's keyframes and the metrics.
 
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use serde_json::{Value, json};
 use treemorph_analysis::Analysis;
 use treemorph_api::ErrorCode;
+use treemorph_api::delta::EncoderOptions;
 use treemorph_gltf::animated::{AnimatedOptions, keyframe_indices};
 use treemorph_gltf::basis::{AnimationBuilder, BasisReport};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
@@ -61,17 +63,21 @@ use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter, Strands};
 use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
 
+use crate::plans::{Planned, Plans, Prepared};
 use crate::{
     FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
-    RenderSpec, Runner, SinkError, SketchSpec, stage,
+    RenderSpec, Runner, SinkError, SketchSpec, StreamPart, stage,
 };
 
 /// Instants sampled before encoding to bound radii and positions.
 const PROBES: [f32; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
 
-/// Runs morph and sketch jobs.
+/// Runs morph and sketch jobs, and renders their instants on request
+/// from the plans it keeps (`plans`).
 #[derive(Debug, Default)]
-pub struct PipelineRunner {}
+pub struct PipelineRunner {
+    plans: Plans,
+}
 
 /// Milliseconds since `started`, for the debug timings of a job's stages.
 fn ms_since(started: Instant) -> f64 {
@@ -87,10 +93,21 @@ fn encode(e: EncodeError) -> JobError {
 }
 
 /// The input tree `id` of a job.
-fn input_tree<'a>(input: &'a JobInput<'_>, id: &str) -> Result<&'a InputTree, JobError> {
-    input.trees.get(id).map(|t| &**t).ok_or_else(|| {
+fn input_tree<'a>(input: &'a JobInput<'_>, id: &str) -> Result<&'a Arc<InputTree>, JobError> {
+    input.trees.get(id).ok_or_else(|| {
         JobError::invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
     })
+}
+
+/// The input trees of a job, in the order its spec names them.
+fn spec_trees(input: &JobInput<'_>) -> Result<Vec<Arc<InputTree>>, JobError> {
+    let ids = match input.spec {
+        JobSpec::Morph(m) => vec![&m.source, &m.target],
+        JobSpec::Sketch(s) => vec![&s.tree],
+    };
+    ids.into_iter()
+        .map(|id| input_tree(input, id).cloned())
+        .collect()
 }
 
 impl Runner for PipelineRunner {
@@ -100,36 +117,96 @@ impl Runner for PipelineRunner {
         true
     }
 
+    /// Keeps the plan (`plans`), so instants asked of the job next are
+    /// quick.
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
         let tree = |id: &str| input_tree(input, id);
-        match input.spec {
-            JobSpec::Morph(m) => run_morph(m, tree(&m.source)?, tree(&m.target)?, sink),
-            JobSpec::Sketch(s) => run_sketch(s, tree(&s.tree)?, sink),
+        let (outcome, plan, probed) = match input.spec {
+            JobSpec::Morph(m) => {
+                let (outcome, plan, probed) =
+                    run_morph(m, tree(&m.source)?, tree(&m.target)?, sink)?;
+                (outcome, Planned::Morph(plan), probed)
+            }
+            JobSpec::Sketch(s) => {
+                let (outcome, plan, probed) = run_sketch(s, tree(&s.tree)?, sink)?;
+                (outcome, Planned::Sketch(plan), probed)
+            }
+        };
+        let trees = spec_trees(input)?;
+        self.plans
+            .insert(input.spec.clone(), trees, plan, Some(probed));
+        Ok(outcome)
+    }
+
+    fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
+        self.render_instant(input, t, InstantFormat::Glb)
+    }
+
+    fn stream_at(
+        &self,
+        input: &JobInput<'_>,
+        t: f32,
+        part: StreamPart,
+    ) -> Result<Vec<u8>, JobError> {
+        self.render_instant(input, t, InstantFormat::Stream(part))
+    }
+}
+
+impl PipelineRunner {
+    /// One instant of a job, from its kept plan or a new one (plans are
+    /// deterministic) and the same probes as the whole job (so tube side
+    /// counts and the stream's bounds match its frames).
+    fn render_instant(
+        &self,
+        input: &JobInput<'_>,
+        t: f32,
+        format: InstantFormat,
+    ) -> Result<Vec<u8>, JobError> {
+        let t = crate::check_instant(t)?;
+        let prepared = self.prepared(input)?;
+        let probed = &prepared.probed;
+        match &prepared.plan {
+            Planned::Morph(plan) => {
+                let mut morpher = Morpher::new(plan);
+                let eval = |t, frame: &mut Frame| morpher.morph(t, frame);
+                instant(plan.topology(), eval, probed, t, format)
+            }
+            Planned::Sketch(plan) => {
+                let mut sketcher = Sketcher::new(plan);
+                let eval = |t, frame: &mut Frame| sketcher.deform(t, frame);
+                instant(plan.topology(), eval, probed, t, format)
+            }
         }
     }
 
-    /// Plans the job again (plans are deterministic), samples the same
-    /// probes as the whole job (so tube side counts match its frames) and
-    /// meshes the one instant.
-    fn frame_at(&self, input: &JobInput<'_>, t: f32) -> Result<Vec<u8>, JobError> {
-        let t = crate::check_instant(t)?;
-        let tree = |id: &str| input_tree(input, id);
-        match input.spec {
+    /// The job's kept plan, or a new one, kept.
+    fn prepared(&self, input: &JobInput<'_>) -> Result<Arc<Prepared>, JobError> {
+        let trees = spec_trees(input)?;
+        if let Some(kept) = self.plans.get(input.spec, &trees) {
+            return Ok(kept);
+        }
+        let plan = match input.spec {
             JobSpec::Morph(m) => {
-                let (source, target) = (tree(&m.source)?, tree(&m.target)?);
+                let (source, target) = (&trees[0], &trees[1]);
                 let (a, b) = rayon::join(|| analyse(source), || analyse(target));
-                let plan = plan_morph(m, source, a?, target, b?)?;
-                let mut morpher = Morpher::new(&plan);
-                instant(plan.topology(), |t, frame| morpher.morph(t, frame), t)
+                Planned::Morph(plan_morph(m, source, a?, target, b?)?)
             }
             JobSpec::Sketch(s) => {
-                let tree = tree(&s.tree)?;
-                let plan = plan_sketch(s, tree, analyse(tree)?)?;
-                let mut sketcher = Sketcher::new(&plan);
-                instant(plan.topology(), |t, frame| sketcher.deform(t, frame), t)
+                let tree = &trees[0];
+                Planned::Sketch(plan_sketch(s, tree, analyse(tree)?)?)
             }
-        }
+        };
+        Ok(self.plans.insert(input.spec.clone(), trees, plan, None))
     }
+}
+
+/// What a single instant is rendered as.
+#[derive(Clone, Copy, Debug)]
+enum InstantFormat {
+    /// The per-frame GLB.
+    Glb,
+    /// A delta stream of the one frame, or its frame record.
+    Stream(StreamPart),
 }
 
 fn plan_morph(
@@ -161,23 +238,50 @@ fn plan_sketch(
     .map_err(|e| JobError::from_domain(&e, ""))
 }
 
-/// One instant of a sequence as the per-frame GLB writer writes it in a
-/// job: after the same probes [`render`] samples, and with the bark's
-/// texture coordinates fixed by the frame at t = 0, as the job's first
-/// frame fixes them.
+/// One instant of a sequence as the job's encoders write it: after the
+/// same probes [`render`] samples, and with the bark's texture coordinates
+/// fixed by the frame at t = 0, as the job's first frame fixes them.
 fn instant(
     topology: &FrameTopology,
     mut eval: impl FnMut(f32, &mut Frame),
+    probed: &OnceLock<Probed>,
     t: f32,
+    format: InstantFormat,
 ) -> Result<Vec<u8>, JobError> {
     let mut frame = Frame::default();
-    let probed = probe(&mut eval, &mut frame);
-    let mut writer = FrameGlbWriter::new(topology, &probed.radii, &FrameGlbOptions::default())
-        .map_err(encode)?;
-    eval(0.0, &mut frame);
-    writer.set_uv_frame(&frame).map_err(encode)?;
+    let probed = probed.get_or_init(|| probe(&mut eval, &mut frame));
+    let mut first = Frame::default();
+    eval(0.0, &mut first);
     eval(t, &mut frame);
-    writer.write(&frame).map_err(encode)
+    match format {
+        InstantFormat::Glb => {
+            let options = FrameGlbOptions::default();
+            let mut writer =
+                FrameGlbWriter::new(topology, &probed.radii, &options).map_err(encode)?;
+            writer.set_uv_frame(&first).map_err(encode)?;
+            writer.write(&frame).map_err(encode)
+        }
+        InstantFormat::Stream(part) => {
+            // One instant at a time, fetched while the user waits: bytes
+            // matter more than the millisecond zstd takes.
+            let options = StreamOptions::default()
+                .with_frame_count(1)
+                .with_encoder(EncoderOptions::default());
+            let mut writer =
+                DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
+                    .map_err(encode)?;
+            let mut out = Vec::new();
+            writer.write_header(&first, &mut out).map_err(encode)?;
+            let header = out.len();
+            writer.write_frame(&frame, &mut out).map_err(encode)?;
+            if part == StreamPart::Frame {
+                out.drain(..header);
+                return Ok(out);
+            }
+            writer.finish(&mut out).map_err(encode)?;
+            Ok(out)
+        }
+    }
 }
 
 fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
@@ -191,7 +295,7 @@ fn run_morph(
     source_input: &InputTree,
     target_input: &InputTree,
     sink: &mut dyn JobSink,
-) -> Result<JobOutcome, JobError> {
+) -> Result<Ran<MorphPlan>, JobError> {
     sink.stage(stage::ANALYSING, 0.02);
     // Trees the cache has not analysed yet are analysed side by side.
     let (a, b) = rayon::join(|| analyse(source_input), || analyse(target_input));
@@ -223,7 +327,8 @@ fn run_morph(
     } else {
         unmeasured(spec.render.frames)
     };
-    finish(outcome, metrics, summary, sink)
+    let (outcome, probed) = finish(outcome, metrics, summary, sink)?;
+    Ok((outcome, plan, probed))
 }
 
 /// The metrics of an [unmeasured](crate::JobSpec::unmeasured) run: the
@@ -326,7 +431,7 @@ fn run_sketch(
     spec: &SketchSpec,
     input: &InputTree,
     sink: &mut dyn JobSink,
-) -> Result<JobOutcome, JobError> {
+) -> Result<Ran<SketchPlan>, JobError> {
     sink.stage(stage::ANALYSING, 0.02);
     let analysis = analyse(input)?;
     if sink.cancelled() {
@@ -354,7 +459,8 @@ fn run_sketch(
     } else {
         unmeasured(spec.render.frames)
     };
-    finish(outcome, metrics, summary, sink)
+    let (outcome, probed) = finish(outcome, metrics, summary, sink)?;
+    Ok((outcome, plan, probed))
 }
 
 #[derive(Default)]
@@ -564,14 +670,20 @@ struct Rendered {
     files: Vec<String>,
     /// What the basis animation reached, when one was written.
     animation: Option<BasisReport>,
+    /// The probes the encoders were made with (kept with the plan).
+    probed: Probed,
 }
 
+/// A finished run: what it reports, its plan and its probes.
+type Ran<P> = (JobOutcome, P, Probed);
+
+/// Publishes `metrics.json` and reports the run, handing back its probes.
 fn finish(
     rendered: Rendered,
     mut metrics: Value,
     summary: Value,
     sink: &mut dyn JobSink,
-) -> Result<JobOutcome, JobError> {
+) -> Result<(JobOutcome, Probed), JobError> {
     if let Some(report) = &rendered.animation {
         add_animation_metrics(&mut metrics, report);
     }
@@ -580,11 +692,12 @@ fn finish(
     let mut files = rendered.files;
     files.push("metrics.json".into());
     sink.stage(stage::FINISHING, 1.0);
-    Ok(JobOutcome {
+    let outcome = JobOutcome {
         frames: rendered.frames,
         metrics: summary,
         files,
-    })
+    };
+    Ok((outcome, rendered.probed))
 }
 
 /// The basis animation's figures in `metrics.json`: its morph target
@@ -611,7 +724,7 @@ fn frame_bounds(frame: &Frame) -> Aabb {
 
 /// What must hold for the whole sequence: tube radii per node and the
 /// bounds of every frame.
-struct Probed {
+pub(crate) struct Probed {
     radii: Vec<f32>,
     bounds: Aabb,
 }
@@ -842,6 +955,7 @@ fn render(
         frames,
         files,
         animation,
+        probed,
     })
 }
 

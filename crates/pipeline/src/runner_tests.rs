@@ -1,7 +1,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use treemorph_api::delta::{DecoderOptions, decode_all};
+use treemorph_api::delta::{DecoderOptions, Event, decode_all};
 use treemorph_api::jobs::{
     MorphJobOptions, SketchFit, SketchInput, SketchJobOptions, SketchMethod,
 };
@@ -534,4 +534,106 @@ fn frames_render_again_byte_for_byte() {
             "frame {i}"
         );
     }
+}
+
+/// A default morph job of `frames` frames and its trees.
+fn morph_job(frames: u32) -> (JobSpec, HashMap<String, Arc<InputTree>>) {
+    let request = morph_request(frames, Outputs::default());
+    let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+    (spec, morph_trees())
+}
+
+/// Instants render the same bytes from the plan a run kept, from a plan
+/// made for the first instant, and from that plan kept: the run's probes
+/// are the ones an instant samples.
+#[test]
+fn instants_render_the_same_from_a_kept_plan_or_a_new_one() {
+    let frames = 5;
+    let (spec, trees) = morph_job(frames);
+    let input = JobInput {
+        spec: &spec,
+        trees: &trees,
+    };
+    let fresh = PipelineRunner::default();
+    let planned = fresh.frame_at(&input, 0.375).unwrap();
+    assert_eq!(fresh.plans.len(), 1);
+    let kept = fresh.frame_at(&input, 0.375).unwrap();
+    assert!(planned == kept, "a kept plan renders other bytes");
+    let ran = PipelineRunner::default();
+    let mut sink = MemorySink::default();
+    ran.run(&input, &mut sink).unwrap();
+    assert_eq!(ran.plans.len(), 1, "the run kept no plan");
+    assert!(ran.frame_at(&input, 0.375).unwrap() == planned);
+    let part = |runner: &PipelineRunner, part| runner.stream_at(&input, 0.6, part).unwrap();
+    assert!(part(&ran, StreamPart::Whole) == part(&fresh, StreamPart::Whole));
+    assert!(part(&ran, StreamPart::Frame) == part(&fresh, StreamPart::Frame));
+}
+
+/// A one-instant stream has the job's header but for its frame count, and
+/// its frame record alone decodes after the job's own header to the job's
+/// frame at that instant.
+#[test]
+fn an_instants_frame_record_decodes_after_the_jobs_header() {
+    let frames = 5;
+    let (spec, trees) = morph_job(frames);
+    let input = JobInput {
+        spec: &spec,
+        trees: &trees,
+    };
+    let runner = PipelineRunner::default();
+    let mut sink = MemorySink::default();
+    runner.run(&input, &mut sink).unwrap();
+    let stream = &sink.files["stream.tmd"];
+    let (header, job_frames) = decode_all(stream, &DecoderOptions::default()).unwrap();
+    let t = crate::frame_instant(3, frames);
+    let whole = runner.stream_at(&input, t, StreamPart::Whole).unwrap();
+    let (one_header, one) = decode_all(&whole, &DecoderOptions::default()).unwrap();
+    assert_eq!(one_header.frame_count, 1);
+    assert_eq!(
+        (one_header.bounds, one_header.grid, &one_header.meshes),
+        (header.bounds, header.grid, &header.meshes),
+        "not the job's header"
+    );
+    assert_eq!(one[0].positions, job_frames[3].positions);
+    let record = runner.stream_at(&input, t, StreamPart::Frame).unwrap();
+    let header_len = sink
+        .header
+        .as_ref()
+        .expect("the job published its header")
+        .len();
+    let mut decoder = treemorph_api::delta::Decoder::new(&DecoderOptions::default());
+    decoder.push(&stream[..header_len]);
+    decoder.push(&record);
+    let mut events = Vec::new();
+    while let Some(e) = decoder.next_event().unwrap() {
+        events.push(e);
+    }
+    let [Event::Header(_), Event::Frame(f)] = &events[..] else {
+        panic!("{} events after the job's header", events.len());
+    };
+    assert_eq!((f.index, f.t), (0, t));
+    assert_eq!(f.positions, job_frames[3].positions);
+    assert_eq!(f.leaf_blend, job_frames[3].leaf_blend);
+}
+
+/// The plan cache keeps the most recently used plans, at most
+/// `plans::CAPACITY`, and one entry per job.
+#[test]
+fn the_plan_cache_keeps_the_latest_jobs() {
+    let trees = morph_trees();
+    let runner = PipelineRunner::default();
+    for frames in 2..8 {
+        let spec = JobSpec::parse(
+            &morph_request(frames, Outputs::default()),
+            &Limits::default(),
+        )
+        .unwrap();
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+        };
+        runner.frame_at(&input, 0.5).unwrap();
+        runner.frame_at(&input, 0.25).unwrap();
+    }
+    assert_eq!(runner.plans.len(), crate::plans::CAPACITY);
 }

@@ -1,0 +1,130 @@
+//! Plans kept for instants rendered on request ([`Runner::frame_at`],
+//! [`Runner::stream_at`]). A timeline scrubbed in the web viewer asks for
+//! many instants of one job, and planning is most of an instant's cost
+//! (about 95 of 130 ms for a 5,000-branch morph), so the plan, and the
+//! probes that fix the meshes' side counts and the stream's grid, are
+//! kept. A run leaves its plan and probes here too: the first instant
+//! asked of a job this process just ran costs a frame, not a plan.
+//!
+//! An entry matches a job by its spec and by the very input trees it was
+//! planned from (pointer identity of the `Arc`s the entry holds, so a tree
+//! that was reloaded never meets a plan of an older copy). Beyond
+//! [`CAPACITY`] entries, or [`NODE_BUDGET`] union nodes in all, the least
+//! recently used are dropped; the newest is always kept. Written here: a
+//! `Vec` of four entries under a mutex is all an LRU of this size needs.
+//!
+//! [`Runner::frame_at`]: crate::Runner::frame_at
+//! [`Runner::stream_at`]: crate::Runner::stream_at
+
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
+
+use treemorph_morph::MorphPlan;
+use treemorph_sketch::SketchPlan;
+
+use crate::runner::Probed;
+use crate::{InputTree, JobSpec};
+
+/// Plans kept at most: a few users scrubbing a few jobs each.
+pub(crate) const CAPACITY: usize = 4;
+
+/// Union nodes kept in all, beyond the newest plan: a plan holds a few
+/// hundred bytes per node (a default 5,000-branch morph has 37,000 nodes,
+/// a 20,000-chain one 102,000), so this bounds the cache near 100 MB.
+pub(crate) const NODE_BUDGET: usize = 500_000;
+
+/// A job's plan.
+// One per kept entry, inside an `Arc`: the variants' sizes never move.
+#[allow(clippy::large_enum_variant)]
+pub(crate) enum Planned {
+    Morph(MorphPlan),
+    Sketch(SketchPlan),
+}
+
+impl Planned {
+    fn nodes(&self) -> usize {
+        match self {
+            Planned::Morph(p) => p.topology().node_count(),
+            Planned::Sketch(p) => p.topology().node_count(),
+        }
+    }
+}
+
+/// A plan with what it was made from, and its probes once sampled.
+pub(crate) struct Prepared {
+    spec: JobSpec,
+    trees: Vec<Arc<InputTree>>,
+    pub plan: Planned,
+    pub probed: OnceLock<Probed>,
+}
+
+/// The kept plans, most recently used first.
+#[derive(Default)]
+pub(crate) struct Plans {
+    entries: Mutex<Vec<Arc<Prepared>>>,
+}
+
+impl std::fmt::Debug for Plans {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kept = self.lock().len();
+        f.debug_struct("Plans").field("kept", &kept).finish()
+    }
+}
+
+impl Plans {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<Arc<Prepared>>> {
+        // A panic while holding the lock leaves a valid Vec: keep using it.
+        self.entries.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Plans kept.
+    #[cfg(test)]
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    /// The plan of `spec` made from `trees`, if kept (it becomes the most
+    /// recently used).
+    pub fn get(&self, spec: &JobSpec, trees: &[Arc<InputTree>]) -> Option<Arc<Prepared>> {
+        let mut entries = self.lock();
+        let at = entries.iter().position(|e| {
+            e.spec == *spec
+                && e.trees.len() == trees.len()
+                && e.trees.iter().zip(trees).all(|(a, b)| Arc::ptr_eq(a, b))
+        })?;
+        let entry = entries.remove(at);
+        entries.insert(0, entry.clone());
+        Some(entry)
+    }
+
+    /// Keeps a plan (and its probes, when known) as the most recently used;
+    /// returns it.
+    pub fn insert(
+        &self,
+        spec: JobSpec,
+        trees: Vec<Arc<InputTree>>,
+        plan: Planned,
+        probed: Option<Probed>,
+    ) -> Arc<Prepared> {
+        let entry = Arc::new(Prepared {
+            spec,
+            trees,
+            plan,
+            probed: probed.map(OnceLock::from).unwrap_or_default(),
+        });
+        let mut entries = self.lock();
+        // A plan of the same job from reloaded trees replaces the older.
+        entries.retain(|e| e.spec != entry.spec);
+        entries.insert(0, entry.clone());
+        let mut nodes = 0;
+        let keep = entries
+            .iter()
+            .take(CAPACITY)
+            .take_while(|e| {
+                nodes += e.plan.nodes();
+                nodes <= NODE_BUDGET
+            })
+            .count();
+        entries.truncate(keep.max(1));
+        entry
+    }
+}

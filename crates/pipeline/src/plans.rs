@@ -6,7 +6,8 @@
 //! kept. A run leaves its plan and probes here too: the first instant
 //! asked of a job this process just ran costs a frame, not a plan.
 //!
-//! An entry matches a job by its spec and by the very input trees it was
+//! An entry matches a job by its plan's part of the spec (trees and
+//! pipeline options, not frames or outputs) and by the very input trees it was
 //! planned from (pointer identity of the `Arc`s the entry holds, so a tree
 //! that was reloaded never meets a plan of an older copy). Beyond
 //! [`CAPACITY`] entries, or [`NODE_BUDGET`] union nodes in all, the least
@@ -57,6 +58,22 @@ pub(crate) struct Prepared {
     pub probed: OnceLock<Probed>,
 }
 
+/// Whether two jobs have the same plan: the same trees and pipeline
+/// options, whatever their frames and outputs (the service runs a job's
+/// stored part and renders instants of the whole job; probes sample fixed
+/// instants).
+fn same_plan(a: &JobSpec, b: &JobSpec) -> bool {
+    match (a, b) {
+        (JobSpec::Morph(a), JobSpec::Morph(b)) => {
+            (&a.source, &a.target, &a.options) == (&b.source, &b.target, &b.options)
+        }
+        (JobSpec::Sketch(a), JobSpec::Sketch(b)) => {
+            (&a.tree, &a.view, &a.sketch, &a.options) == (&b.tree, &b.view, &b.sketch, &b.options)
+        }
+        _ => false,
+    }
+}
+
 /// The kept plans, most recently used first.
 #[derive(Default)]
 pub(crate) struct Plans {
@@ -87,7 +104,7 @@ impl Plans {
     pub fn get(&self, spec: &JobSpec, trees: &[Arc<InputTree>]) -> Option<Arc<Prepared>> {
         let mut entries = self.lock();
         let at = entries.iter().position(|e| {
-            e.spec == *spec
+            same_plan(&e.spec, spec)
                 && e.trees.len() == trees.len()
                 && e.trees.iter().zip(trees).all(|(a, b)| Arc::ptr_eq(a, b))
         })?;
@@ -113,7 +130,7 @@ impl Plans {
         });
         let mut entries = self.lock();
         // A plan of the same job from reloaded trees replaces the older.
-        entries.retain(|e| e.spec != entry.spec);
+        entries.retain(|e| !same_plan(&e.spec, &entry.spec));
         entries.insert(0, entry.clone());
         let mut nodes = 0;
         let keep = entries

@@ -559,11 +559,19 @@ fn instants_render_the_same_from_a_kept_plan_or_a_new_one() {
     assert_eq!(fresh.plans.len(), 1);
     let kept = fresh.frame_at(&input, 0.375).unwrap();
     assert!(planned == kept, "a kept plan renders other bytes");
+    // The service runs a job's stored part (its stream and metrics), and
+    // renders instants of the whole job: one plan serves both.
     let ran = PipelineRunner::default();
     let mut sink = MemorySink::default();
-    ran.run(&input, &mut sink).unwrap();
+    let stored = spec.stored_part();
+    let stored_input = JobInput {
+        spec: &stored,
+        trees: &trees,
+    };
+    ran.run(&stored_input, &mut sink).unwrap();
     assert_eq!(ran.plans.len(), 1, "the run kept no plan");
     assert!(ran.frame_at(&input, 0.375).unwrap() == planned);
+    assert_eq!(ran.plans.len(), 1, "the instant planned again");
     let part = |runner: &PipelineRunner, part| runner.stream_at(&input, 0.6, part).unwrap();
     assert!(part(&ran, StreamPart::Whole) == part(&fresh, StreamPart::Whole));
     assert!(part(&ran, StreamPart::Frame) == part(&fresh, StreamPart::Frame));
@@ -617,23 +625,28 @@ fn an_instants_frame_record_decodes_after_the_jobs_header() {
 }
 
 /// The plan cache keeps the most recently used plans, at most
-/// `plans::CAPACITY`, and one entry per job.
+/// `plans::CAPACITY`, and one entry per plan (jobs that differ only in
+/// frames share it).
 #[test]
 fn the_plan_cache_keeps_the_latest_jobs() {
-    let trees = morph_trees();
+    let [a, b] = ["a", "b"].map(|k| morph_trees()[k].clone());
     let runner = PipelineRunner::default();
-    for frames in 2..8 {
-        let spec = JobSpec::parse(
-            &morph_request(frames, Outputs::default()),
-            &Limits::default(),
-        )
-        .unwrap();
-        let input = JobInput {
-            spec: &spec,
-            trees: &trees,
-        };
-        runner.frame_at(&input, 0.5).unwrap();
-        runner.frame_at(&input, 0.25).unwrap();
+    for k in 0..6 {
+        // The same trees under other ids: other jobs.
+        let (source, target) = (format!("a{k}"), format!("b{k}"));
+        let trees = HashMap::from([(source.clone(), a.clone()), (target.clone(), b.clone())]);
+        for frames in [3, 7] {
+            let JobRequest::Morph(mut m) = morph_request(frames, Outputs::default()) else {
+                unreachable!()
+            };
+            (m.source, m.target) = (source.clone(), target.clone());
+            let spec = JobSpec::parse(&JobRequest::Morph(m), &Limits::default()).unwrap();
+            let input = JobInput {
+                spec: &spec,
+                trees: &trees,
+            };
+            runner.frame_at(&input, 0.5).unwrap();
+        }
+        assert_eq!(runner.plans.len(), (k + 1).min(crate::plans::CAPACITY));
     }
-    assert_eq!(runner.plans.len(), crate::plans::CAPACITY);
 }

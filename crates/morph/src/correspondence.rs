@@ -15,6 +15,7 @@ use treemorph_analysis::{Analysis, ChainId, GroupId};
 use treemorph_tree::Tree;
 
 use crate::assignment::{FORBIDDEN, match_or_leave};
+use crate::crossing::{Pose, Swing, Swings, Track, uncross};
 use crate::options::{ChainMatching, LeafMorph, MorphOptions};
 
 /// The transformation that carries a union chain from source to target
@@ -482,7 +483,19 @@ pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Corres
                     }
                 }
             }
-            let matching = match_or_leave(&block, &vec![u; gs_kids.len()], &vec![u; gt_kids.len()]);
+            let mut matching =
+                match_or_leave(&block, &vec![u; gs_kids.len()], &vec![u; gt_kids.len()]);
+            if star.sources.len() == 1 && star.targets.len() == 1 {
+                // Siblings on one parent each side: their motions compare.
+                let swing = |i: usize, j: usize| group_swing(s, t, gs_kids[i], gt_kids[j], options);
+                let swings = Swings {
+                    cost: &block,
+                    cols: gt_kids.len(),
+                    weight: f64::from(options.group_weights.crossing),
+                    swing: &swing,
+                };
+                uncross(&swings, &mut matching);
+            }
             let mut target_used = vec![false; gt_kids.len()];
             for (i, m) in matching.iter().enumerate() {
                 match m {
@@ -522,6 +535,24 @@ pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Corres
         }
     };
     out
+}
+
+/// The union chains groups `gs` and `gt` make when matched: their chains
+/// matched as [`correspond`] matches them, as pose pairs.
+fn group_swing(s: &Input, t: &Input, gs: GroupId, gt: GroupId, options: &MorphOptions) -> Swing {
+    let cs = &s.analysis.group(gs).chains;
+    let ct = &t.analysis.group(gt).chains;
+    let mut candidates = Vec::with_capacity(cs.len() * ct.len());
+    for (i, &a) in cs.iter().enumerate() {
+        for (j, &b) in ct.iter().enumerate() {
+            candidates.push((i as u32, j as u32, chain_cost(s, t, a, b, options)));
+        }
+    }
+    let one_to_many = options.chain_matching == ChainMatching::OneToMany;
+    greedy(&mut candidates, cs.len(), ct.len(), one_to_many)
+        .into_iter()
+        .map(|(i, j, _)| Track::new(&Pose::of(s, cs[i]), &Pose::of(t, ct[j])))
+        .collect()
 }
 
 /// Marks a chain and its whole substructure.

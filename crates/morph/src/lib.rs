@@ -63,7 +63,11 @@
 //!    algorithm, `assignment`). Groups are only compared inside a star, so
 //!    matched groups are always at one BPTT level (Rule 1) on matched parent
 //!    chains (Rule 2). An unmatched group wilts or grows with its whole
-//!    substructure.
+//!    substructure. In a one-to-one star the matching is then searched
+//!    for **crossings**: two matched groups trade partners when that keeps
+//!    more sibling limbs from passing through each other mid-morph, at
+//!    [`GroupCostWeights::crossing`] each, than it adds cost (`crossing`
+//!    module: the model, and how well it agrees with the written frames).
 //! 3. **Leaves** are matched inside each star's inner lobes (the ILs of its
 //!    source chains against those of its target chains) with the same
 //!    greedy one-to-many scheme: every leaf of the smaller side gets a
@@ -285,6 +289,7 @@
 mod assignment;
 mod builder;
 mod correspondence;
+mod crossing;
 mod error;
 mod growth;
 mod metrics;

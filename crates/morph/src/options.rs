@@ -31,6 +31,12 @@ pub struct GroupCostWeights {
     /// Gp: difference of the growth locations on the parent chains
     /// (arc-length fractions; default 1).
     pub growth_location: f32,
+    /// The group cost one crossing is worth: after the minimum-weight
+    /// matching of a star's child groups, partners are swapped where that
+    /// removes sibling limbs passing through each other mid-morph for less
+    /// added cost, and never for more than this (`crossing.rs`; default
+    /// 0.5; 0 keeps the matching).
+    pub crossing: f32,
 }
 
 impl Default for GroupCostWeights {
@@ -42,6 +48,7 @@ impl Default for GroupCostWeights {
             chain_count: 0.5,
             divergence: 0.5,
             growth_location: 1.0,
+            crossing: 0.5,
         }
     }
 }
@@ -256,6 +263,7 @@ impl MorphOptions {
             ("group_weights.chain_count", g.chain_count),
             ("group_weights.divergence", g.divergence),
             ("group_weights.growth_location", g.growth_location),
+            ("group_weights.crossing", g.crossing),
             ("unmatched_group_cost", self.unmatched_group_cost),
             ("chain_weights.branching_vector", c.branching_vector),
             ("chain_weights.growth_location", c.growth_location),

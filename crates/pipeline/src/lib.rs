@@ -267,7 +267,9 @@ pub enum StreamPart {
 /// - 3: morphs are staged by default (`options.schedule`).
 /// - 4: sketches turn about their joints and are staged by default;
 ///   their `metrics.json` has `max_jump` and `jump_ratio`.
-pub const RENDER_VERSION: u32 = 4;
+/// - 5: a morph's group matching swaps partners to uncross sibling limbs
+///   (`group_weights.crossing`).
+pub const RENDER_VERSION: u32 = 5;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

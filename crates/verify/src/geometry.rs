@@ -59,46 +59,7 @@ pub fn segment_point_sq(p: Vec3, a: Vec3, b: Vec3) -> f32 {
     p.distance_squared(a + ab * t)
 }
 
-/// Squared distance between segments `p1q1` and `p2q2` (Ericson 5.1.9).
-pub fn segment_segment_sq(p1: Vec3, q1: Vec3, p2: Vec3, q2: Vec3) -> f32 {
-    let (d1, d2, r) = (q1 - p1, q2 - p2, p1 - p2);
-    let (a, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
-    const EPS: f32 = 1e-20;
-    let (s, t);
-    if a <= EPS && e <= EPS {
-        return p1.distance_squared(p2);
-    }
-    if a <= EPS {
-        s = 0.0;
-        t = (f / e).clamp(0.0, 1.0);
-    } else {
-        let c = d1.dot(r);
-        if e <= EPS {
-            t = 0.0;
-            s = (-c / a).clamp(0.0, 1.0);
-        } else {
-            let b = d1.dot(d2);
-            let denom = a * e - b * b;
-            let s0 = if denom > 0.0 {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let t0 = (b * s0 + f) / e;
-            if t0 < 0.0 {
-                t = 0.0;
-                s = (-c / a).clamp(0.0, 1.0);
-            } else if t0 > 1.0 {
-                t = 1.0;
-                s = ((b - c) / a).clamp(0.0, 1.0);
-            } else {
-                t = t0;
-                s = s0;
-            }
-        }
-    }
-    (p1 + d1 * s).distance_squared(p2 + d2 * t)
-}
+pub use treemorph_tree::geom::segment_segment_sq;
 
 /// Whether segment `pq` crosses triangle `[a, b, c]` (Ericson 5.3.6, both
 /// faces). Parallel and coplanar segments answer `false`: where they touch

@@ -376,7 +376,6 @@ const PARALLEL_BLOCK: usize = 1024;
 pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Correspondence {
     let sa = s.analysis;
     let ta = t.analysis;
-    let one_to_many = options.chain_matching == ChainMatching::OneToMany;
     let mut out = Correspondence::default();
     let mut stars: Vec<Star> = Vec::new();
     let mut src_unmatched = vec![false; sa.chains().len()];
@@ -394,13 +393,7 @@ pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Corres
         // Rule 3: chains are matched only inside matched groups.
         let cs = &sa.group(gs).chains;
         let ct = &ta.group(gt).chains;
-        candidates.clear();
-        for (i, &a) in cs.iter().enumerate() {
-            for (j, &b) in ct.iter().enumerate() {
-                candidates.push((i as u32, j as u32, chain_cost(s, t, a, b, options)));
-            }
-        }
-        let pairs = greedy(&mut candidates, cs.len(), ct.len(), one_to_many);
+        let pairs = match_chains(s, t, (cs, ct), options, &mut candidates);
         let mut src_partners = vec![0u32; cs.len()];
         let mut tgt_partners = vec![0u32; ct.len()];
         for &(i, j, _) in &pairs {
@@ -542,17 +535,29 @@ pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Corres
 fn group_swing(s: &Input, t: &Input, gs: GroupId, gt: GroupId, options: &MorphOptions) -> Swing {
     let cs = &s.analysis.group(gs).chains;
     let ct = &t.analysis.group(gt).chains;
-    let mut candidates = Vec::with_capacity(cs.len() * ct.len());
+    match_chains(s, t, (cs, ct), options, &mut Vec::new())
+        .into_iter()
+        .map(|(i, j, _)| Track::new(&Pose::of(s, cs[i]), &Pose::of(t, ct[j])))
+        .collect()
+}
+
+/// The chains of two matched groups matched greedily (Rule 3), one to
+/// many unless the options say one to one; `candidates` is scratch space.
+fn match_chains(
+    s: &Input,
+    t: &Input,
+    (cs, ct): (&[ChainId], &[ChainId]),
+    options: &MorphOptions,
+    candidates: &mut Vec<(u32, u32, f32)>,
+) -> Vec<GreedyPair> {
+    candidates.clear();
     for (i, &a) in cs.iter().enumerate() {
         for (j, &b) in ct.iter().enumerate() {
             candidates.push((i as u32, j as u32, chain_cost(s, t, a, b, options)));
         }
     }
     let one_to_many = options.chain_matching == ChainMatching::OneToMany;
-    greedy(&mut candidates, cs.len(), ct.len(), one_to_many)
-        .into_iter()
-        .map(|(i, j, _)| Track::new(&Pose::of(s, cs[i]), &Pose::of(t, ct[j])))
-        .collect()
+    greedy(candidates, cs.len(), ct.len(), one_to_many)
 }
 
 /// Marks a chain and its whole substructure.

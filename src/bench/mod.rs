@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use crate::cli::Failure;
 
+mod job;
 mod stages;
 
 /// Arguments of `treemorph bench`.
@@ -122,6 +123,18 @@ const GROUPS: &[Group] = &[
     (
         stages::sketch_rows,
         &["sketch plan", "sketch frame", "sketch frame + meshes"],
+    ),
+    (
+        job::job_rows,
+        &["default job", "frame at an instant, stored plan"],
+    ),
+    (
+        job::measurement_rows,
+        &[
+            "output check per frame",
+            "crossings per frame",
+            "frame metrics per frame",
+        ],
     ),
     (
         stages::output_rows,

@@ -340,6 +340,7 @@ fn instant_rows(
     let job = JobInput {
         spec: &spec,
         trees: &trees,
+        stored_plan: None,
     };
     let one = |name: &str, what: &str, render: &dyn Fn() -> Vec<u8>| {
         let mut bytes = 0;

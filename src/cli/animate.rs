@@ -160,6 +160,7 @@ fn run_job(
     let input = JobInput {
         spec: &spec,
         trees: &trees,
+        stored_plan: None,
     };
     if let Some(t) = common.at {
         return write_instant(runner.as_ref(), &input, t, &common.output);

@@ -249,6 +249,13 @@ pub fn header_key(prefix: &str) -> String {
     format!("{prefix}/stream/header.rec")
 }
 
+/// Blob key of the job's stored plan under an attempt prefix
+/// ([`crate::pipeline::JobSink::plan`]): not an output clients download,
+/// but it lives and dies with them.
+pub fn plan_key(prefix: &str) -> String {
+    format!("{prefix}/plan.bin")
+}
+
 /// Blob key of a whole-sequence file under an attempt prefix.
 pub fn file_key(prefix: &str, name: &str) -> String {
     format!("{prefix}/files/{name}")

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 use tokio::runtime::Handle;
 
 use super::Hub;
-use super::queue::{self, file_key, frame_delta_key, frame_glb_key, header_key};
+use super::queue::{self, file_key, frame_delta_key, frame_glb_key, header_key, plan_key};
 use crate::pipeline::{Attempt, FrameOutput, JobSink, SinkError};
 use crate::store::{Blobs, Db};
 use crate::telemetry::Metrics;
@@ -311,6 +311,14 @@ impl JobSink for BlobSink {
             self.files.push(name.to_owned());
         }
         Ok(())
+    }
+
+    fn keeps_plan(&self) -> bool {
+        true
+    }
+
+    fn plan(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        self.put("plan", plan_key(&self.prefix), bytes)
     }
 
     fn attempt(&self) -> Option<Attempt<'_>> {

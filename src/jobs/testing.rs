@@ -393,7 +393,7 @@ impl TestRunner {
         };
         let panic_after_first = (self.decide)(spec) == TestBehaviour::Panic;
         for id in spec.tree_ids() {
-            if !input.trees.contains_key(id) {
+            if input.trees.tree(id).is_err() {
                 return Err(internal(format!("tree {id} was not loaded")));
             }
         }
@@ -535,6 +535,7 @@ mod tests {
         let input = JobInput {
             spec: &spec,
             trees: &trees,
+            stored_plan: None,
         };
         runner.run(&input, &mut sink).unwrap();
         sink

@@ -41,7 +41,7 @@ use treemorph_tree::Limits;
 use super::queue::{self, Claim, End, JobRow, Lease, StoredResult};
 use super::sink::{BlobSink, Flags};
 use super::{Services, backoff_ms};
-use crate::pipeline::{InputTree, JobError, JobInput, JobOutcome, JobSpec};
+use crate::pipeline::{InputTree, JobError, JobInput, JobOutcome, JobSpec, StoredPlan};
 use crate::store::now_ms;
 
 /// In-flight attempts of this process: job id → (token, flags).
@@ -326,7 +326,7 @@ pub(crate) async fn load_trees(
 /// One input tree: from the tree cache, or read from the blob store,
 /// parsed and cached (the runner then analyses it in place, so the next
 /// job on it finds the analysis too).
-async fn load_tree(services: &Services, id: &str) -> Result<Arc<InputTree>, JobError> {
+pub(crate) async fn load_tree(services: &Services, id: &str) -> Result<Arc<InputTree>, JobError> {
     if let Some(cached) = services.trees.get(id) {
         services.metrics.observe_tree_cache(true);
         return Ok(cached);
@@ -415,12 +415,20 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
     // A thread of its own at job priority (see `super::priority`), not the
     // runtime's blocking pool, whose threads also serve file reads for
     // requests and would keep the lowered priority.
+    let plan_key = queue::plan_key(&queue::attempt_prefix(&row.id, token));
     let (done, joined) = tokio::sync::oneshot::channel();
     let work = move || {
         super::priority::lower_this_thread();
+        // The run's plan is kept under its attempt, where renders of the
+        // job look first: there is nothing stored to load yet.
+        let none = || None;
         let input = JobInput {
             spec: &spec,
             trees: &trees,
+            stored_plan: Some(StoredPlan {
+                key: &plan_key,
+                load: &none,
+            }),
         };
         let result = catch_unwind(AssertUnwindSafe(|| runner.run(&input, sink.as_mut())));
         if plan_first && matches!(result, Ok(Ok(_))) {

@@ -484,7 +484,7 @@ async fn render_at(
     resample::check_version(row)?;
     let spec =
         crate::jobs::worker::claimed_spec(&state.services, row).map_err(resample::outdated)?;
-    resample::on_inputs(state, spec, move |runner, input| match what {
+    resample::on_inputs(state, row, spec, move |runner, input| match what {
         Instant::Glb => runner.frame_at(input, t),
         Instant::Stream(part) => runner.stream_at(input, t, part),
     })

@@ -15,6 +15,7 @@
 //! - A job whose trees are gone answers 410 `plan_outdated`.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use bytes::Bytes;
 use serde_json::{Value, json};
@@ -24,7 +25,10 @@ use treemorph_api::jobs::JobRequest;
 use super::AppState;
 use crate::error::ApiError;
 use crate::jobs::queue::JobRow;
-use crate::pipeline::{FrameOutput, JobError, JobInput, JobSink, JobSpec, Runner, SinkError};
+use crate::pipeline::{
+    FrameOutput, InputTree, JobError, JobInput, JobSink, JobSpec, Runner, SinkError, StoredPlan,
+    TreeSource,
+};
 
 /// What to re-sample.
 #[derive(Clone, Copy, Debug)]
@@ -152,20 +156,6 @@ pub fn check_version(row: &JobRow) -> Result<(), ApiError> {
     }
 }
 
-/// `spec`'s input trees, from the tree cache or the blob store.
-async fn trees_of(
-    state: &AppState,
-    spec: &JobSpec,
-) -> Result<HashMap<String, std::sync::Arc<crate::pipeline::InputTree>>, ApiError> {
-    crate::jobs::worker::load_trees(&state.services, spec)
-        .await
-        .map_err(|e| match e.code {
-            ErrorCode::TreeNotFound => outdated(e),
-            ErrorCode::Unavailable => ApiError::unavailable(e.message),
-            _ => ApiError::from(e),
-        })
-}
-
 /// The run that re-samples the succeeded job `row`, whose outputs live
 /// under `prefix`: its render-cache key (the ETag's source) and its spec,
 /// the stored request converted once with the new count and one output.
@@ -199,12 +189,17 @@ pub async fn file(
     check_version(row)?;
     state
         .renders
-        .get_or_render(key, run(state, spec, what))
+        .get_or_render(key, run(state, row, spec, what))
         .await
 }
 
-async fn run(state: &AppState, spec: JobSpec, what: Resample) -> Result<Vec<u8>, ApiError> {
-    let mut files = on_inputs(state, spec, |runner, input| {
+async fn run(
+    state: &AppState,
+    row: &JobRow,
+    spec: JobSpec,
+    what: Resample,
+) -> Result<Vec<u8>, ApiError> {
+    let mut files = on_inputs(state, row, spec, |runner, input| {
         let mut files = Files::default();
         runner.run(input, &mut files).map(|_| files)
     })
@@ -215,23 +210,72 @@ async fn run(state: &AppState, spec: JobSpec, what: Resample) -> Result<Vec<u8>,
         .ok_or_else(|| ApiError::internal(format!("the run wrote no {}", what.file())))
 }
 
-/// Runs `work` on `spec` with its input trees, on the blocking pool (never
-/// in a worker slot: a render does not hold up the job queue).
+/// Runs `work` on `spec` on the blocking pool (never in a worker slot: a
+/// render does not hold up the job queue), with the plan `row`'s run
+/// stored and, should the runner need them (no plan kept or stored), its
+/// input trees, loaded then.
 pub async fn on_inputs<T: Send + 'static>(
     state: &AppState,
+    row: &JobRow,
     spec: JobSpec,
     work: impl FnOnce(&dyn Runner, &JobInput<'_>) -> Result<T, JobError> + Send + 'static,
 ) -> Result<T, ApiError> {
-    let trees = trees_of(state, &spec).await?;
     let runner = state.services.runner.clone();
+    let services = state.services.clone();
+    let prefix = row.published_prefix();
+    let rt = tokio::runtime::Handle::current();
     let done = tokio::task::spawn_blocking(move || {
+        let trees = LazyTrees {
+            rt: &rt,
+            services: &services,
+        };
+        let key = prefix.as_deref().map(crate::jobs::queue::plan_key);
+        // Read only when the runner asks: a kept plan costs no read.
+        let load = || stored_plan(&rt, &services.blobs, key.as_deref()?);
         let input = JobInput {
             spec: &spec,
             trees: &trees,
+            stored_plan: key.as_deref().map(|key| StoredPlan { key, load: &load }),
         };
         work(runner.as_ref(), &input)
     })
     .await
     .map_err(ApiError::internal)?;
-    Ok(done?)
+    done.map_err(|e| match e.code {
+        ErrorCode::TreeNotFound => outdated(e),
+        ErrorCode::Unavailable => ApiError::unavailable(e.message),
+        _ => ApiError::from(e),
+    })
+}
+
+/// A job's input trees, each loaded (from the tree cache or the blob
+/// store) when the runner first asks for it, on the blocking thread the
+/// render runs on.
+struct LazyTrees<'a> {
+    rt: &'a tokio::runtime::Handle,
+    services: &'a crate::jobs::Services,
+}
+
+impl TreeSource for LazyTrees<'_> {
+    fn tree(&self, id: &str) -> Result<Arc<InputTree>, JobError> {
+        self.rt
+            .block_on(crate::jobs::worker::load_tree(self.services, id))
+    }
+}
+
+/// The stored plan under `key`, read on a blocking thread; `None` when
+/// there is none (jobs run before plans were stored) or it cannot be read
+/// (logged: the runner plans again).
+fn stored_plan(
+    rt: &tokio::runtime::Handle,
+    blobs: &crate::store::Blobs,
+    key: &str,
+) -> Option<Vec<u8>> {
+    match rt.block_on(blobs.get(key)) {
+        Ok(bytes) => bytes.map(Vec::from),
+        Err(e) => {
+            tracing::warn!(key, error = %e, "the stored plan cannot be read; planning again");
+            None
+        }
+    }
 }

@@ -3,7 +3,7 @@
 use serde_json::json;
 use treemorph::config::Settings;
 
-use crate::common::spawn_with;
+use crate::common::{error_code, spawn_with};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_real_morph_and_sketch_run_with_the_default_runner() {
@@ -291,4 +291,78 @@ async fn cached_and_loaded_trees_give_the_same_animation() {
     );
     second.stop().await;
     drop(data);
+}
+
+/// A job's plan is stored with it, so a process that did not run it (here
+/// a restarted one, with no plan kept and no tree cached) renders its
+/// instants from the stored plan without its trees, the same bytes as the
+/// process that ran it; a stored plan that cannot be read, with the trees
+/// gone too, is answered 410 `plan_outdated`, never a 500.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_server_renders_instants_from_the_stored_plan() {
+    let data = tempfile::tempdir().unwrap();
+    let dir = data.path().to_owned();
+    // No render is kept in the blob store: each server renders its own.
+    let configure = |dir: std::path::PathBuf| {
+        move |s: &mut Settings| {
+            s.workers = Some(1);
+            s.data_dir = dir;
+            s.render_store_mb = 0;
+            s.tree_cache_mb = 0;
+        }
+    };
+    let first = spawn_with(
+        treemorph::pipeline::default_runner(),
+        configure(dir.clone()),
+    )
+    .await;
+    let mut ids = Vec::new();
+    for (preset, seed) in [("maple", 3), ("shrub", 4)] {
+        let (s, body) = first
+            .post_json(
+                "/v1/trees/generate",
+                &json!({"preset": preset, "seed": seed, "size": 300}),
+            )
+            .await;
+        assert_eq!(s, 201, "{body}");
+        ids.push(body["id"].as_str().unwrap().to_owned());
+    }
+    let (id, _) = morph_to_end(&first, &ids[0], &ids[1], 5).await;
+    let (s, expected) = instant(&first, &id, "0.3").await;
+    assert_eq!(s, 200);
+    first.stop().await;
+
+    let job_dir = dir.join("blobs").join("jobs").join(&id);
+    let plan = crate::common::files(&job_dir)
+        .into_iter()
+        .find(|p| p.ends_with("plan.bin"))
+        .expect("the job stored its plan");
+    for id in &ids {
+        let tree_dir = dir.join("blobs").join("trees").join(id);
+        std::fs::remove_dir_all(tree_dir).unwrap();
+    }
+    let second = spawn_with(
+        treemorph::pipeline::default_runner(),
+        configure(dir.clone()),
+    )
+    .await;
+    let (s, rendered) = instant(&second, &id, "0.3").await;
+    assert_eq!(s, 200, "{}", String::from_utf8_lossy(&rendered));
+    assert!(rendered == expected, "the stored plan renders other bytes");
+    second.stop().await;
+
+    std::fs::write(&plan, b"TMPLAN\0\0 not a plan").unwrap();
+    let third = spawn_with(treemorph::pipeline::default_runner(), configure(dir)).await;
+    let (s, body) = third
+        .get_json(&format!("/v1/jobs/{id}/frame.glb?t=0.6"))
+        .await;
+    assert_eq!((s, error_code(&body)), (410, "plan_outdated"), "{body}");
+    third.stop().await;
+    drop(data);
+}
+
+/// `frame.glb?t=T` of job `id`: its status and body.
+async fn instant(app: &crate::common::TestApp, id: &str, t: &str) -> (u16, Vec<u8>) {
+    let r = app.get(&format!("/v1/jobs/{id}/frame.glb?t={t}")).await;
+    (r.status().as_u16(), r.bytes().await.unwrap().to_vec())
 }

@@ -20,7 +20,7 @@ use crate::options::{ChainMatching, LeafMorph, MorphOptions};
 
 /// The transformation that carries a union chain from source to target
 /// (§6.1, Figure 5).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Operation {
     /// A one-to-one matched chain.
@@ -36,7 +36,7 @@ pub enum Operation {
 }
 
 /// A matched pair of chains.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct ChainMatch {
     /// Source chain.
     pub source: ChainId,
@@ -52,7 +52,7 @@ pub struct ChainMatch {
 }
 
 /// A leaf pair, or a leaf that grows or wilts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct LeafMatch {
     /// Source leaf index (into [`Tree::leaves`]); `None` for a leaf that
     /// grows.
@@ -62,7 +62,7 @@ pub struct LeafMatch {
 }
 
 /// All correspondences between the source and the target tree.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Correspondence {
     /// Matched chain groups `[source, target]`, top-down (the root groups
     /// first).

@@ -10,6 +10,7 @@ use crate::correspondence::Operation;
 use crate::growth::GrowthMeter;
 use crate::options::MetricsOptions;
 use crate::plan::{EndpointError, LeafMode, MorphPlan};
+use crate::schedule::Paced;
 
 /// Measurements of one frame (see the crate docs, *Metrics*).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -272,7 +273,7 @@ impl<'p> FrameMeter<'p> {
     pub fn measure(&mut self, frame: &Frame) -> Result<FrameMetrics, FrameMismatch> {
         let plan = self.plan;
         frame.check(plan.topology())?;
-        let t = frame.t.clamp(0.0, 1.0);
+        let t = plan.schedule.paced(frame.t.clamp(0.0, 1.0));
         let height = plan.height();
         let eps = self.options.floating_epsilon * height;
         let pos = &frame.positions;
@@ -330,7 +331,7 @@ impl<'p> FrameMeter<'p> {
     }
 
     /// §7's maximum main-trunk support weight (see the crate docs).
-    fn mtsw(&mut self, frame: &Frame, t: f32) -> f32 {
+    fn mtsw(&mut self, frame: &Frame, t: Paced) -> f32 {
         let plan = self.plan;
         let chains = plan.chains();
         let wood = self.options.wood_density as f64 * std::f64::consts::PI;
@@ -444,7 +445,7 @@ impl<'p> FrameMeter<'p> {
     /// from the tip as it grows (`lerp(1, p, t)`; a wilting one's out,
     /// `lerp(1, p, 1 − t)`), so OR is continuous in `t` and equals the
     /// input's OR at both ends.
-    fn or_of(&self, i: usize, t: f32) -> f32 {
+    fn or_of(&self, i: usize, t: Paced) -> f32 {
         let chains = self.plan.chains();
         self.children[self.child_offsets[i] as usize..self.child_offsets[i + 1] as usize]
             .iter()
@@ -463,7 +464,7 @@ impl<'p> FrameMeter<'p> {
 
     /// T(z) of chain `i` at union parameter `z`: everything it supports
     /// from `z` up (its subtree minus its own wood and leaves below `z`).
-    fn t_at(&self, frame: &Frame, i: usize, z: f32, t: f32) -> f64 {
+    fn t_at(&self, frame: &Frame, i: usize, z: f32, t: Paced) -> f64 {
         let plan = self.plan;
         let cp = &plan.chain_plans[i];
         let u = &plan.sample_u[cp.first as usize..(cp.first + cp.len) as usize];

@@ -7,7 +7,7 @@ use treemorph_tree::{Frame, FrameLeaf};
 
 use crate::correspondence::Operation;
 use crate::plan::{ChainPlan, LeafMode, LeafPlan, MorphPlan, Sample};
-use crate::schedule::ChainState;
+use crate::schedule::{ChainState, Paced};
 
 /// Chains per rayon task when a level is split across threads.
 const CHAINS_PER_TASK: usize = 256;
@@ -304,7 +304,7 @@ fn morph_chains(
     chains: &[ChainPlan],
     index: usize,
     base: usize,
-    t: f32,
+    t: Paced,
     done: (&[Vec3], &[Quat]),
     out: ChainOut,
     parallel: bool,
@@ -480,6 +480,7 @@ impl<'p> Morpher<'p> {
         let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
         let nodes = plan.topology.node_count();
         frame.t = t;
+        let t = plan.schedule.paced(t);
         frame.bark_blend = plan.schedule.overall(t);
         frame.positions.resize(nodes, Vec3::ZERO);
         frame.radii.resize(nodes, 0.0);

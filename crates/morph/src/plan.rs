@@ -9,14 +9,14 @@ use treemorph_analysis::ChainId;
 use treemorph_tree::{FrameTopology, NodeId};
 
 use crate::correspondence::{Correspondence, LeafMatch, Operation};
-use crate::schedule::Schedule;
+use crate::schedule::{Paced, Schedule};
 
 /// A chain of the union topology: one matched pair (or one copy of a split
 /// or merge), or one growing or wilting chain. Its nodes are a contiguous
 /// range: first its **junction node** (on the parent chain's axis at the
 /// interpolated growth location; at the root for root chains), then one
 /// node per sample.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct UnionChain {
     /// How the chain goes from source to target.
     pub operation: Operation,
@@ -34,7 +34,7 @@ pub struct UnionChain {
 }
 
 /// Which input nodes a union node reproduces exactly at t = 0 and t = 1.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct NodeOrigin {
     /// The source node it sits on at t = 0 (`None` for a sample added from
     /// the target polyline, or a growing chain).
@@ -45,7 +45,7 @@ pub struct NodeOrigin {
 
 /// How far the morph's end frames are from its inputs (see
 /// [`FrameMetrics::endpoint_error`](crate::FrameMetrics)).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct EndpointError {
     /// The frame at t = 0 against the source tree: the largest difference
     /// of a node position, a node radius (junction nodes excepted), a leaf
@@ -56,7 +56,7 @@ pub struct EndpointError {
 }
 
 /// A union chain as the morpher needs it.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct ChainPlan {
     pub operation: Operation,
     /// First sample (its node is `1 + first`).
@@ -81,7 +81,7 @@ pub(crate) struct ChainPlan {
 /// sample, each in the chain's anchor frame (the parent's frame at the
 /// growth location), precomputed for slerp as `a cos(wθ) + a⊥ sin(wθ)`.
 /// Quaternions first: 80 bytes, no padding.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Sample {
     pub frame: Quat,
     pub frame_perp: Quat,
@@ -95,7 +95,7 @@ pub(crate) struct Sample {
     pub radius: [f32; 2],
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub(crate) enum LeafMode {
     /// The paper: carried by the host chain.
     OnChain,
@@ -104,7 +104,7 @@ pub(crate) enum LeafMode {
 }
 
 /// What a frame needs of a leaf (kept small: frames stream through it).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct LeafPlan {
     pub mode: LeafMode,
     /// The union chain carrying the leaf ([`LeafMode::OnChain`]).
@@ -130,7 +130,7 @@ pub(crate) struct LeafPlan {
 /// correspondence, the union topology, and per-sample and per-leaf data.
 /// Build it once with [`MorphPlan::new`], then play it with a
 /// [`Morpher`](crate::Morpher).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct MorphPlan {
     pub(crate) topology: FrameTopology,
     pub(crate) correspondence: Correspondence,
@@ -202,12 +202,12 @@ impl MorphPlan {
     }
 
     /// The root node at time `t` (it moves with the reshape phase).
-    pub(crate) fn root_at(&self, t: f32) -> Vec3 {
+    pub(crate) fn root_at(&self, t: Paced) -> Vec3 {
         self.root[0].lerp(self.root[1], self.schedule.overall(t))
     }
 
     /// Union parameter of a chain's growth location at time `t`.
-    pub(crate) fn growth_at(&self, chain: usize, t: f32) -> f32 {
+    pub(crate) fn growth_at(&self, chain: usize, t: Paced) -> f32 {
         let p = self.chain_plans[chain].p;
         p[0] + (p[1] - p[0]) * self.schedule.chain_weight(chain, t)
     }

@@ -70,8 +70,13 @@ pub(crate) const GROW: [f32; 2] = [0.55, 1.0];
 /// subtree's longest base-to-tip path.
 pub(crate) const UNFOLD: f32 = 0.25;
 
-/// A tip-first growing or wilting union chain's front.
+/// An instant of a morph as its schedule's windows read it
+/// ([`Schedule::paced`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Paced(f32);
+
+/// A tip-first growing or wilting union chain's front.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Front {
     /// Metres from its subtree's junction to the chain's base.
     pub base: f32,
@@ -82,7 +87,7 @@ pub(crate) struct Front {
 }
 
 /// When one union chain moves.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct ChainTiming {
     pub window: Window,
     /// `Some` for tip-first growth and wilt.
@@ -100,7 +105,7 @@ pub(crate) enum ChainState {
 
 /// When one leaf moves: its window's clock, then (unfolding with a front)
 /// its share of the clock.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct LeafTiming {
     pub window: Window,
     /// Where on the clock the front reaches the leaf (0 without a front).
@@ -112,7 +117,7 @@ pub(crate) struct LeafTiming {
 }
 
 /// The timing of every union chain and leaf of a plan.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Schedule {
     pub ease: Ease,
     /// The reshape phase: the root, the bark blend.
@@ -146,19 +151,25 @@ impl Schedule {
         }
     }
 
+    /// `t` as the windows read it: after the pace, once per frame (the
+    /// pace is a search among its knots, and a frame asks for every union
+    /// chain's and leaf's clock).
+    pub(crate) fn paced(&self, t: f32) -> Paced {
+        Paced(self.pace.as_ref().map_or(t, |p| p.at(t)))
+    }
+
     /// The eased clock of `window` at `t`.
-    fn clock(&self, window: Window, t: f32) -> f32 {
-        let t = self.pace.as_ref().map_or(t, |p| p.at(t));
+    fn clock(&self, window: Window, Paced(t): Paced) -> f32 {
         self.ease.at(window.local(t))
     }
 
     /// The clock of the reshape phase (root, bark).
-    pub(crate) fn overall(&self, t: f32) -> f32 {
+    pub(crate) fn overall(&self, t: Paced) -> f32 {
         self.clock(self.overall, t)
     }
 
     /// Union chain `i` at `t`.
-    pub(crate) fn chain(&self, i: usize, t: f32) -> ChainState {
+    pub(crate) fn chain(&self, i: usize, t: Paced) -> ChainState {
         let c = self.chains[i];
         let clock = self.clock(c.window, t);
         match c.front {
@@ -177,7 +188,7 @@ impl Schedule {
 
     /// The interpolation weight of union chain `i` at `t`: its blend
     /// weight, or for tip-first chains how much of the front has passed.
-    pub(crate) fn chain_weight(&self, i: usize, t: f32) -> f32 {
+    pub(crate) fn chain_weight(&self, i: usize, t: Paced) -> f32 {
         let c = self.chains[i];
         let clock = self.clock(c.window, t);
         match c.front {
@@ -192,7 +203,7 @@ impl Schedule {
     }
 
     /// The interpolation weight of leaf `i` at `t`.
-    pub(crate) fn leaf(&self, i: usize, t: f32) -> f32 {
+    pub(crate) fn leaf(&self, i: usize, t: Paced) -> f32 {
         let l = self.leaves[i];
         let clock = self.clock(l.window, t);
         if l.at == 0.0 && l.inv_unfold == 1.0 {

@@ -30,6 +30,7 @@ mod error;
 mod plans;
 mod runner;
 mod spec;
+mod stored;
 
 pub use error::{ErrorCoded, INTERNAL_MESSAGE, JobError};
 pub use runner::PipelineRunner;
@@ -37,6 +38,7 @@ pub use spec::{
     DEFAULT_BASIS_SAMPLES, DEFAULT_KEYFRAMES, JobSpec, Limits, MIN_FRAMES, MorphSpec, RenderSpec,
     SketchSpec, SpecError, morph_options, sketch_options, view, wire_view,
 };
+pub use stored::{FORMAT as PLAN_FORMAT, ReadError as PlanReadError};
 
 /// The stages a job goes through, in order; reported in `GET /v1/jobs/{id}`
 /// and the SSE stream.
@@ -95,6 +97,19 @@ pub trait JobSink {
     /// attempt every served byte came from.
     fn attempt(&self) -> Option<Attempt<'_>> {
         None
+    }
+    /// Whether this sink keeps the job's plan ([`JobSink::plan`]); runners
+    /// encode it only then.
+    fn keeps_plan(&self) -> bool {
+        false
+    }
+    /// Publishes the job's plan, a versioned binary (see
+    /// [`PlanReadError`] for what reading it may meet): outputs rendered on
+    /// request later start from it ([`JobInput::stored_plan`]) instead of
+    /// planning again. Called after the last frame, before the job ends.
+    fn plan(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        let _ = bytes;
+        Ok(())
     }
 }
 
@@ -182,14 +197,65 @@ impl From<Tree> for InputTree {
     }
 }
 
-/// A claimed job with its input trees loaded.
-#[derive(Debug)]
+/// A claimed job: its spec, where its input trees come from and, for a
+/// job that ran before, the plan it stored.
 pub struct JobInput<'a> {
     /// The job, converted and validated once.
     pub spec: &'a JobSpec,
-    /// The trees the request names, by id.
-    pub trees: &'a HashMap<String, Arc<InputTree>>,
+    /// The trees the request names, by id; a runner asks only for those it
+    /// needs (none when it starts from a kept or stored plan).
+    pub trees: &'a dyn TreeSource,
+    /// The plan the job's run published ([`JobSink::plan`]), if the caller
+    /// knows of one: rendering from it needs no trees.
+    pub stored_plan: Option<StoredPlan<'a>>,
 }
+
+impl std::fmt::Debug for JobInput<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JobInput")
+            .field("spec", self.spec)
+            .field("stored_plan", &self.stored_plan.map(|s| s.key))
+            .finish_non_exhaustive()
+    }
+}
+
+/// Where a job's input trees come from: a map of loaded trees, or a
+/// source that loads each on first use (the service's renders, which
+/// need no tree at all when the job's plan is stored).
+pub trait TreeSource: Sync {
+    /// The input tree `id`; `tree_not_found` when it is not there.
+    fn tree(&self, id: &str) -> Result<Arc<InputTree>, JobError>;
+}
+
+impl TreeSource for HashMap<String, Arc<InputTree>> {
+    fn tree(&self, id: &str) -> Result<Arc<InputTree>, JobError> {
+        self.get(id).cloned().ok_or_else(|| {
+            JobError::invalid(
+                treemorph_api::ErrorCode::TreeNotFound,
+                format!("tree {id} was not loaded"),
+            )
+        })
+    }
+}
+
+/// A job's plan as its run published it ([`JobSink::plan`]).
+#[derive(Clone, Copy)]
+pub struct StoredPlan<'a> {
+    /// What names this plan and no other for as long as it exists (the
+    /// service gives the attempt that ran the job: its trees and request
+    /// never change). A runner keeps plans in memory under it, so a
+    /// render of a job whose plan is kept neither loads the plan nor
+    /// asks for trees; the run of the job passes it too, and leaves its
+    /// plan there.
+    pub key: &'a str,
+    /// Reads the stored bytes: `None` when there are none or they cannot
+    /// be read (the runner then plans again from the trees). Called only
+    /// when no plan is kept under `key`.
+    pub load: &'a PlanLoader<'a>,
+}
+
+/// Reads a job's stored plan ([`StoredPlan::load`]).
+pub type PlanLoader<'a> = dyn Fn() -> Option<Vec<u8>> + Sync + 'a;
 
 /// Runs jobs. Implementations are synchronous and CPU-bound; the queue calls
 /// them on a blocking thread.

@@ -7,9 +7,11 @@
 //! asked of a job this process just ran costs a frame, not a plan.
 //!
 //! An entry matches a job by its plan's part of the spec (trees and
-//! pipeline options, not frames or outputs) and by the very input trees it was
-//! planned from (pointer identity of the `Arc`s the entry holds, so a tree
-//! that was reloaded never meets a plan of an older copy). Beyond
+//! pipeline options, not frames or outputs) and either by the key of the
+//! job's stored plan ([`crate::StoredPlan::key`]: the service's renders,
+//! which then need no trees), or by the very input trees it was planned
+//! from (pointer identity of the `Arc`s the entry holds, so a tree that
+//! was reloaded never meets a plan of an older copy). Beyond
 //! [`CAPACITY`] entries, or [`NODE_BUDGET`] union nodes in all, the least
 //! recently used are dropped; the newest is always kept. Written here: a
 //! `Vec` of four entries under a mutex is all an LRU of this size needs.
@@ -36,6 +38,7 @@ pub(crate) const NODE_BUDGET: usize = 500_000;
 /// A job's plan.
 // One per kept entry, inside an `Arc`: the variants' sizes never move.
 #[allow(clippy::large_enum_variant)]
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(crate) enum Planned {
     Morph(MorphPlan),
     Sketch(SketchPlan),
@@ -53,7 +56,7 @@ impl Planned {
 /// A plan with what it was made from, and its probes once sampled.
 pub(crate) struct Prepared {
     spec: JobSpec,
-    trees: Vec<Arc<InputTree>>,
+    of: Owned,
     pub plan: Planned,
     pub probed: OnceLock<Probed>,
 }
@@ -71,6 +74,42 @@ fn same_plan(a: &JobSpec, b: &JobSpec) -> bool {
             (&a.tree, &a.view, &a.sketch, &a.options) == (&b.tree, &b.view, &b.sketch, &b.options)
         }
         _ => false,
+    }
+}
+
+/// What a plan is looked up by, besides its spec.
+#[derive(Clone, Copy)]
+pub(crate) enum PlanOf<'a> {
+    /// The key of the job's stored plan.
+    Key(&'a str),
+    /// The input trees, in the order the spec names them.
+    Trees(&'a [Arc<InputTree>]),
+}
+
+/// [`PlanOf`], held by an entry.
+enum Owned {
+    Key(String),
+    Trees(Vec<Arc<InputTree>>),
+}
+
+impl Owned {
+    fn matches(&self, of: PlanOf<'_>) -> bool {
+        match (self, of) {
+            (Owned::Key(a), PlanOf::Key(b)) => a == b,
+            (Owned::Trees(a), PlanOf::Trees(b)) => {
+                a.len() == b.len() && a.iter().zip(b).all(|(a, b)| Arc::ptr_eq(a, b))
+            }
+            _ => false,
+        }
+    }
+}
+
+impl From<PlanOf<'_>> for Owned {
+    fn from(of: PlanOf<'_>) -> Owned {
+        match of {
+            PlanOf::Key(key) => Owned::Key(key.to_owned()),
+            PlanOf::Trees(trees) => Owned::Trees(trees.to_vec()),
+        }
     }
 }
 
@@ -99,15 +138,13 @@ impl Plans {
         self.lock().len()
     }
 
-    /// The plan of `spec` made from `trees`, if kept (it becomes the most
+    /// The plan of `spec` kept under `of`, if any (it becomes the most
     /// recently used).
-    pub fn get(&self, spec: &JobSpec, trees: &[Arc<InputTree>]) -> Option<Arc<Prepared>> {
+    pub fn get(&self, spec: &JobSpec, of: PlanOf<'_>) -> Option<Arc<Prepared>> {
         let mut entries = self.lock();
-        let at = entries.iter().position(|e| {
-            same_plan(&e.spec, spec)
-                && e.trees.len() == trees.len()
-                && e.trees.iter().zip(trees).all(|(a, b)| Arc::ptr_eq(a, b))
-        })?;
+        let at = entries
+            .iter()
+            .position(|e| same_plan(&e.spec, spec) && e.of.matches(of))?;
         let entry = entries.remove(at);
         entries.insert(0, entry.clone());
         Some(entry)
@@ -118,19 +155,24 @@ impl Plans {
     pub fn insert(
         &self,
         spec: JobSpec,
-        trees: Vec<Arc<InputTree>>,
+        of: PlanOf<'_>,
         plan: Planned,
         probed: Option<Probed>,
     ) -> Arc<Prepared> {
         let entry = Arc::new(Prepared {
             spec,
-            trees,
+            of: of.into(),
             plan,
             probed: probed.map(OnceLock::from).unwrap_or_default(),
         });
         let mut entries = self.lock();
-        // A plan of the same job from reloaded trees replaces the older.
-        entries.retain(|e| !same_plan(&e.spec, &entry.spec));
+        // A plan of the same job from reloaded trees replaces the older;
+        // one under the same key too (planned again after its stored
+        // copy could not be read).
+        entries.retain(|e| {
+            !same_plan(&e.spec, &entry.spec)
+                || matches!((&e.of, &entry.of), (Owned::Key(a), Owned::Key(b)) if a != b)
+        });
         entries.insert(0, entry.clone());
         let mut nodes = 0;
         let keep = entries

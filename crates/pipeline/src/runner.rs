@@ -50,7 +50,6 @@ use std::time::Instant;
 
 use serde_json::{Value, json};
 use treemorph_analysis::Analysis;
-use treemorph_api::ErrorCode;
 use treemorph_api::delta::EncoderOptions;
 use treemorph_gltf::animated::{AnimatedOptions, keyframe_indices};
 use treemorph_gltf::basis::{AnimationBuilder, BasisReport};
@@ -60,10 +59,10 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
-use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter, Strands};
+use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
 use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
 
-use crate::plans::{Planned, Plans, Prepared};
+use crate::plans::{PlanOf, Planned, Plans, Prepared};
 use crate::{
     FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
     RenderSpec, Runner, SinkError, SketchSpec, StreamPart, stage,
@@ -92,22 +91,13 @@ fn encode(e: EncodeError) -> JobError {
     JobError::from_domain(&e, "encoding frames: ")
 }
 
-/// The input tree `id` of a job.
-fn input_tree<'a>(input: &'a JobInput<'_>, id: &str) -> Result<&'a Arc<InputTree>, JobError> {
-    input.trees.get(id).ok_or_else(|| {
-        JobError::invalid(ErrorCode::TreeNotFound, format!("tree {id} was not loaded"))
-    })
-}
-
 /// The input trees of a job, in the order its spec names them.
 fn spec_trees(input: &JobInput<'_>) -> Result<Vec<Arc<InputTree>>, JobError> {
     let ids = match input.spec {
         JobSpec::Morph(m) => vec![&m.source, &m.target],
         JobSpec::Sketch(s) => vec![&s.tree],
     };
-    ids.into_iter()
-        .map(|id| input_tree(input, id).cloned())
-        .collect()
+    ids.into_iter().map(|id| input.trees.tree(id)).collect()
 }
 
 impl Runner for PipelineRunner {
@@ -117,24 +107,24 @@ impl Runner for PipelineRunner {
         true
     }
 
-    /// Keeps the plan (`plans`), so instants asked of the job next are
-    /// quick.
+    /// Starts from a kept or stored plan when there is one (a re-sampled
+    /// output of a job costs its frames, not a plan), else plans; keeps
+    /// the plan (`plans`), so instants asked of the job next are quick,
+    /// and publishes it when the sink keeps plans.
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
-        let tree = |id: &str| input_tree(input, id);
-        let (outcome, plan, probed) = match input.spec {
-            JobSpec::Morph(m) => {
-                let (outcome, plan, probed) =
-                    run_morph(m, tree(&m.source)?, tree(&m.target)?, sink)?;
-                (outcome, Planned::Morph(plan), probed)
-            }
-            JobSpec::Sketch(s) => {
-                let (outcome, plan, probed) = run_sketch(s, tree(&s.tree)?, sink)?;
-                (outcome, Planned::Sketch(plan), probed)
-            }
+        let prepared = self.prepared(input, Some(&mut *sink))?;
+        let (outcome, probed) = match (&prepared.plan, input.spec) {
+            (Planned::Morph(plan), JobSpec::Morph(m)) => run_morph(m, plan, sink)?,
+            (Planned::Sketch(plan), JobSpec::Sketch(s)) => run_sketch(s, plan, sink)?,
+            _ => return Err(JobError::internal("a kept plan of another kind of job")),
         };
-        let trees = spec_trees(input)?;
-        self.plans
-            .insert(input.spec.clone(), trees, plan, Some(probed));
+        let probed = prepared.probed.get_or_init(|| probed);
+        if sink.keeps_plan() {
+            let started = Instant::now();
+            let bytes = crate::stored::write(&prepared.plan, probed);
+            tracing::debug!(ms = ms_since(started), bytes = bytes.len(), "plan encoded");
+            sink.plan(bytes).map_err(stored)?;
+        }
         Ok(outcome)
     }
 
@@ -163,7 +153,7 @@ impl PipelineRunner {
         format: InstantFormat,
     ) -> Result<Vec<u8>, JobError> {
         let t = crate::check_instant(t)?;
-        let prepared = self.prepared(input)?;
+        let prepared = self.prepared(input, None)?;
         let probed = &prepared.probed;
         match &prepared.plan {
             Planned::Morph(plan) => {
@@ -179,25 +169,92 @@ impl PipelineRunner {
         }
     }
 
-    /// The job's kept plan, or a new one, kept.
-    fn prepared(&self, input: &JobInput<'_>) -> Result<Arc<Prepared>, JobError> {
+    /// The job's plan: kept in memory, else stored with the job
+    /// ([`JobInput::stored_plan`]), else a new one from its trees; kept.
+    /// A run passes its sink, for the stages and cancellation of planning.
+    fn prepared(
+        &self,
+        input: &JobInput<'_>,
+        sink: Option<&mut dyn JobSink>,
+    ) -> Result<Arc<Prepared>, JobError> {
+        let spec = input.spec;
+        if let Some(stored) = input.stored_plan {
+            let of = PlanOf::Key(stored.key);
+            if let Some(kept) = self.plans.get(spec, of) {
+                return Ok(kept);
+            }
+            if let Some(read) = read_stored(stored.load) {
+                return Ok(self
+                    .plans
+                    .insert(spec.clone(), of, read.plan, Some(read.probed)));
+            }
+            let plan = new_plan(spec, &spec_trees(input)?, sink)?;
+            return Ok(self.plans.insert(spec.clone(), of, plan, None));
+        }
         let trees = spec_trees(input)?;
-        if let Some(kept) = self.plans.get(input.spec, &trees) {
+        if let Some(kept) = self.plans.get(spec, PlanOf::Trees(&trees)) {
             return Ok(kept);
         }
-        let plan = match input.spec {
-            JobSpec::Morph(m) => {
-                let (source, target) = (&trees[0], &trees[1]);
-                let (a, b) = rayon::join(|| analyse(source), || analyse(target));
-                Planned::Morph(plan_morph(m, source, a?, target, b?)?)
-            }
-            JobSpec::Sketch(s) => {
-                let tree = &trees[0];
-                Planned::Sketch(plan_sketch(s, tree, analyse(tree)?)?)
-            }
-        };
-        Ok(self.plans.insert(input.spec.clone(), trees, plan, None))
+        let plan = new_plan(spec, &trees, sink)?;
+        Ok(self
+            .plans
+            .insert(spec.clone(), PlanOf::Trees(&trees), plan, None))
     }
+}
+
+/// The stored plan `load` reads, if it reads one this build renders.
+fn read_stored(load: &crate::PlanLoader<'_>) -> Option<crate::stored::StoredPlan> {
+    let started = Instant::now();
+    let bytes = load()?;
+    match crate::stored::read(&bytes) {
+        Ok(stored) => {
+            tracing::debug!(
+                ms = ms_since(started),
+                bytes = bytes.len(),
+                "stored plan read"
+            );
+            Some(stored)
+        }
+        Err(e) => {
+            tracing::warn!(error = %e, "planning again: the stored plan cannot be used");
+            None
+        }
+    }
+}
+
+/// Analyses a job's trees (side by side when neither is analysed yet)
+/// and plans it, reporting stages to `sink` when a run passes one.
+fn new_plan(
+    spec: &JobSpec,
+    trees: &[Arc<InputTree>],
+    mut sink: Option<&mut dyn JobSink>,
+) -> Result<Planned, JobError> {
+    if let Some(sink) = sink.as_deref_mut() {
+        sink.stage(stage::ANALYSING, 0.02);
+    }
+    let analyses = match spec {
+        JobSpec::Morph(_) => {
+            let (a, b) = rayon::join(|| analyse(&trees[0]), || analyse(&trees[1]));
+            vec![a?, b?]
+        }
+        JobSpec::Sketch(_) => vec![analyse(&trees[0])?],
+    };
+    if let Some(sink) = sink {
+        if sink.cancelled() {
+            return Err(JobError::cancelled());
+        }
+        sink.stage(stage::PLANNING, 0.08);
+    }
+    Ok(match spec {
+        JobSpec::Morph(m) => Planned::Morph(plan_morph(
+            m,
+            &trees[0],
+            analyses[0],
+            &trees[1],
+            analyses[1],
+        )?),
+        JobSpec::Sketch(s) => Planned::Sketch(plan_sketch(s, &trees[0], analyses[0])?),
+    })
 }
 
 /// What a single instant is rendered as.
@@ -292,29 +349,24 @@ fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
 
 fn run_morph(
     spec: &MorphSpec,
-    source_input: &InputTree,
-    target_input: &InputTree,
+    plan: &MorphPlan,
     sink: &mut dyn JobSink,
-) -> Result<Ran<MorphPlan>, JobError> {
-    sink.stage(stage::ANALYSING, 0.02);
-    // Trees the cache has not analysed yet are analysed side by side.
-    let (a, b) = rayon::join(|| analyse(source_input), || analyse(target_input));
-    let (a, b) = (a?, b?);
-    if sink.cancelled() {
-        return Err(JobError::cancelled());
-    }
-    sink.stage(stage::PLANNING, 0.08);
-    let plan = plan_morph(spec, source_input, a, target_input, b)?;
-    let mut morpher = Morpher::new(&plan);
-    let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
+) -> Result<(JobOutcome, Probed), JobError> {
+    let mut morpher = Morpher::new(plan);
+    let mut meter = FrameMeter::new(plan, &MetricsOptions::default());
     let mut series = MorphSeries::with_capacity(spec.render.frames as usize);
+    let mut crossings = CrossingMeter::new();
     let mut measure_error = None;
     let outcome = render(
         plan.topology(),
         &spec.render,
         |t, frame| morpher.morph(t, frame),
-        |frame, written| match meter.measure(frame) {
-            Ok(m) => series.push(&m, written, (&plan.topology().strands, frame)),
+        |frame| {
+            crossings.push(&plan.topology().strands, frame);
+            meter.measure(frame)
+        },
+        |written, measured| match measured {
+            Ok(m) => series.push(&m, written),
             Err(e) => measure_error = Some(e),
         },
         sink,
@@ -323,12 +375,11 @@ fn run_morph(
         return Err(JobError::internal(format_args!("measuring frames: {e}")));
     }
     let (metrics, summary) = if spec.render.measured {
-        series.into_json(spec.render.frames, plan.endpoint_error())
+        series.into_json(spec.render.frames, plan.endpoint_error(), &crossings)
     } else {
         unmeasured(spec.render.frames)
     };
-    let (outcome, probed) = finish(outcome, metrics, summary, sink)?;
-    Ok((outcome, plan, probed))
+    finish(outcome, metrics, summary, sink)
 }
 
 /// The metrics of an [unmeasured](crate::JobSpec::unmeasured) run: the
@@ -366,14 +417,9 @@ impl MorphSeries {
         }
     }
 
-    fn push(
-        &mut self,
-        m: &treemorph_morph::FrameMetrics,
-        written: &Report,
-        drawn: (&Strands, &Frame),
-    ) {
+    fn push(&mut self, m: &treemorph_morph::FrameMetrics, written: &Report) {
         self.t.push(m.t);
-        self.written.push(written, drawn);
+        self.written.push(written);
         self.constructed_floating_branches.push(m.floating_branches);
         self.constructed_floating_leaves.push(m.floating_leaves);
         self.mtsw.push(m.mtsw);
@@ -384,7 +430,12 @@ impl MorphSeries {
     }
 
     /// `metrics.json` and the job's summary metrics.
-    fn into_json(self, frames: u32, endpoint: treemorph_morph::EndpointError) -> (Value, Value) {
+    fn into_json(
+        self,
+        frames: u32,
+        endpoint: treemorph_morph::EndpointError,
+        crossings: &CrossingMeter,
+    ) -> (Value, Value) {
         let max = |v: &[u32]| v.iter().copied().max().unwrap_or(0);
         let mut summary = json!({
             "max_jump": self.max_jump.iter().copied().fold(0.0f32, f32::max),
@@ -408,7 +459,8 @@ impl MorphSeries {
             "coincident_leaves": self.coincident_leaves,
             "endpoint_error": {"source": endpoint.source, "target": endpoint.target},
         });
-        self.written.write_into(&mut metrics, &mut summary);
+        self.written
+            .write_into(crossings, &mut metrics, &mut summary);
         (metrics, summary)
     }
 }
@@ -429,38 +481,32 @@ fn jump_ratio(max_jump: &[f32]) -> f32 {
 
 fn run_sketch(
     spec: &SketchSpec,
-    input: &InputTree,
+    plan: &SketchPlan,
     sink: &mut dyn JobSink,
-) -> Result<Ran<SketchPlan>, JobError> {
-    sink.stage(stage::ANALYSING, 0.02);
-    let analysis = analyse(input)?;
-    if sink.cancelled() {
-        return Err(JobError::cancelled());
-    }
-    sink.stage(stage::PLANNING, 0.08);
-    let plan = plan_sketch(spec, input, analysis)?;
-    let mut sketcher = Sketcher::new(&plan);
-    let mut meter = SketchMetrics::new(&plan);
+) -> Result<(JobOutcome, Probed), JobError> {
+    let mut sketcher = Sketcher::new(plan);
+    let mut meter = SketchMetrics::new(plan);
     let mut series = SketchSeries::with_capacity(spec.render.frames as usize, plan.height());
+    let (mut crossings, mut jumps) = (CrossingMeter::new(), JumpMeter::default());
     let outcome = render(
         plan.topology(),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
-        |frame, written| {
-            let drawn = (&plan.topology().strands, frame);
-            series.push(meter.measure(frame), written, drawn)
+        |frame| {
+            crossings.push(&plan.topology().strands, frame);
+            (meter.measure(frame), jumps.jump(frame))
         },
+        |written, measured| series.push(measured, written),
         sink,
     )?;
     let (metrics, summary) = if spec.render.measured {
         series
-            .into_json(spec.render.frames)
+            .into_json(spec.render.frames, &crossings)
             .ok_or_else(|| JobError::internal("no frame was measured"))?
     } else {
         unmeasured(spec.render.frames)
     };
-    let (outcome, probed) = finish(outcome, metrics, summary, sink)?;
-    Ok((outcome, plan, probed))
+    finish(outcome, metrics, summary, sink)
 }
 
 #[derive(Default)]
@@ -470,7 +516,6 @@ struct SketchSeries {
     growth: Vec<f32>,
     /// The tree's height (jumps are fractions of it).
     height: f32,
-    jumps: JumpMeter,
     max_jump: Vec<f32>,
     first_depth_width: Option<f32>,
     written: WrittenSeries,
@@ -486,7 +531,6 @@ impl SketchSeries {
             frechet: Vec::with_capacity(n),
             stretch: Vec::with_capacity(n),
             growth: Vec::with_capacity(n),
-            jumps: JumpMeter::default(),
             max_jump: Vec::with_capacity(n),
             first_depth_width: None,
             written: WrittenSeries::with_capacity(n),
@@ -496,18 +540,13 @@ impl SketchSeries {
         }
     }
 
-    fn push(
-        &mut self,
-        m: treemorph_sketch::FrameMetrics,
-        written: &Report,
-        drawn: (&Strands, &Frame),
-    ) {
+    fn push(&mut self, (m, jump): (treemorph_sketch::FrameMetrics, f32), written: &Report) {
         self.frechet.push(m.frechet_normalised);
-        self.max_jump.push(self.jumps.jump(drawn.1) / self.height);
+        self.max_jump.push(jump / self.height);
         self.stretch.push(m.max_stretch);
         self.growth.push(m.max_growth);
         self.first_depth_width.get_or_insert(m.crown_depth_width);
-        self.written.push(written, drawn);
+        self.written.push(written);
         self.constructed_floating_branches.push(m.floating_branches);
         self.constructed_floating_leaves.push(m.floating_leaves);
         self.last = Some(m);
@@ -515,7 +554,7 @@ impl SketchSeries {
 
     /// `metrics.json` and the job's summary metrics; `None` when no frame
     /// was measured.
-    fn into_json(self, frames: u32) -> Option<(Value, Value)> {
+    fn into_json(self, frames: u32, crossings: &CrossingMeter) -> Option<(Value, Value)> {
         let last = self.last?;
         let max_stretch = self.stretch.iter().copied().fold(0.0f32, f32::max);
         let max_growth = self.growth.iter().copied().fold(0.0f32, f32::max);
@@ -544,18 +583,17 @@ impl SketchSeries {
             "constructed_floating_branches": self.constructed_floating_branches,
             "constructed_floating_leaves": self.constructed_floating_leaves,
         });
-        self.written.write_into(&mut metrics, &mut summary);
+        self.written
+            .write_into(crossings, &mut metrics, &mut summary);
         Some((metrics, summary))
     }
 }
 
-/// The output-level counts of every frame as written, and the crossings
-/// of its branch tubes (`treemorph-verify`).
+/// The output-level counts of every frame as written (`treemorph-verify`).
 #[derive(Default)]
 struct WrittenSeries {
     floating_branches: Vec<u32>,
     floating_leaves: Vec<u32>,
-    crossings: CrossingMeter,
 }
 
 impl WrittenSeries {
@@ -563,22 +601,20 @@ impl WrittenSeries {
         WrittenSeries {
             floating_branches: Vec::with_capacity(n),
             floating_leaves: Vec::with_capacity(n),
-            crossings: CrossingMeter::new(),
         }
     }
 
-    fn push(&mut self, report: &Report, (strands, frame): (&Strands, &Frame)) {
+    fn push(&mut self, report: &Report) {
         self.floating_branches.push(report.floating_branches);
         self.floating_leaves.push(report.floating_leaves);
-        self.crossings.push(strands, frame);
     }
 
-    /// Adds the per-frame counts to `metrics.json` and their maxima to the
-    /// summary, under the names both have always had (`crossings` is
-    /// new).
-    fn write_into(self, metrics: &mut Value, summary: &mut Value) {
+    /// Adds the per-frame counts and the crossings of the frames' branch
+    /// tubes to `metrics.json` and their maxima to the summary, under the
+    /// names both have always had (`crossings` is new).
+    fn write_into(self, crossings: &CrossingMeter, metrics: &mut Value, summary: &mut Value) {
         let max = |v: &[u32]| v.iter().max().copied().unwrap_or(0);
-        let crossings = self.crossings.crossings();
+        let crossings = crossings.crossings();
         summary["floating_branches"] = max(&self.floating_branches).into();
         summary["floating_leaves"] = max(&self.floating_leaves).into();
         summary["crossings"] = max(&crossings).into();
@@ -674,9 +710,6 @@ struct Rendered {
     probed: Probed,
 }
 
-/// A finished run: what it reports, its plan and its probes.
-type Ran<P> = (JobOutcome, P, Probed);
-
 /// Publishes `metrics.json` and reports the run, handing back its probes.
 fn finish(
     rendered: Rendered,
@@ -724,6 +757,7 @@ fn frame_bounds(frame: &Frame) -> Aabb {
 
 /// What must hold for the whole sequence: tube radii per node and the
 /// bounds of every frame.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub(crate) struct Probed {
     radii: Vec<f32>,
     bounds: Aabb,
@@ -870,17 +904,20 @@ impl Encoders {
 }
 
 /// Computes the spec's frames with `eval`, publishes them through `sink`
-/// in every requested format, and measures each with `measure` (given the
-/// output-level check of the frame as written) unless the spec is
-/// [unmeasured](crate::JobSpec::unmeasured). Frame `i`'s check runs
-/// beside frame `i + 1`'s evaluation and encoding ([`OutputCheck`]), so
+/// in every requested format, and measures each unless the spec is
+/// [unmeasured](crate::JobSpec::unmeasured): `construct` right after the
+/// frame is computed (what its construction says), then `measure` with
+/// that and the output-level check of the frame as written. Frame `i`'s
+/// check and `measure` run on one core while frame `i + 1` is evaluated,
+/// constructed-measured and encoded on the other ([`OutputCheck`]), so
 /// `measure` sees frame `i` once frame `i + 1` is computed, and the last
 /// frame after the loop; the metrics are the same, in the same order.
-fn render(
+fn render<M: Send>(
     topology: &FrameTopology,
     spec: &RenderSpec,
     mut eval: impl FnMut(f32, &mut Frame) + Send,
-    mut measure: impl FnMut(&Frame, &Report),
+    mut construct: impl FnMut(&Frame) -> M + Send,
+    mut measure: impl FnMut(&Report, M) + Send,
     sink: &mut dyn JobSink,
 ) -> Result<Rendered, JobError> {
     let frames = spec.frames;
@@ -893,32 +930,32 @@ fn render(
         .transpose()?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
-    // The frame whose copy waits for its check (see `OutputCheck`).
-    let mut checked = Frame::default();
-    let mut waiting = false;
+    // What `construct` said of the frame whose copy waits for its check
+    // (see `OutputCheck`).
+    let mut waiting = None;
     for i in 0..frames {
         if sink.cancelled() {
             return Err(JobError::cancelled());
         }
         let t = crate::frame_instant(i, frames);
         let started = Instant::now();
-        let (report, encoded) = rayon::join(
-            || match &mut output_check {
-                Some(check) if waiting => check.check().map(Some),
-                _ => Ok(None),
+        let measuring = output_check.is_some();
+        let (measured, encoded) = rayon::join(
+            || match (&mut output_check, waiting.take()) {
+                (Some(check), Some(m)) => check.check().map(|report| measure(&report, m)),
+                _ => Ok(()),
             },
             || {
                 eval(t, &mut frame);
+                let constructed = measuring.then(|| construct(&frame));
                 let eval_ms = ms_since(started);
                 encoders
                     .encode(i, &frame, &mut record)
-                    .map(|out| (out, eval_ms))
+                    .map(|out| (out, eval_ms, constructed))
             },
         );
-        if let Some(report) = report? {
-            measure(&checked, &report);
-        }
-        let ((header, glb), eval_ms) = encoded?;
+        measured?;
+        let ((header, glb), eval_ms, constructed) = encoded?;
         let encoded_ms = ms_since(started);
         let delta = publish_record(i, header, &record, &mut whole_stream, sink)?;
         sink.frame(FrameOutput {
@@ -931,8 +968,7 @@ fn render(
         let published_ms = ms_since(started);
         if let Some(check) = &mut output_check {
             check.take(&frame, &encoders)?;
-            checked.clone_from(&frame);
-            waiting = true;
+            waiting = constructed;
         }
         encoders.keyframe(i, &frame)?;
         tracing::debug!(
@@ -945,10 +981,10 @@ fn render(
         sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
     }
     if let Some(check) = &mut output_check
-        && waiting
+        && let Some(m) = waiting
     {
         let report = check.check()?;
-        measure(&checked, &report);
+        measure(&report, m);
     }
     let (files, animation) = encoders.finish(whole_stream, sink)?;
     Ok(Rendered {

@@ -1,5 +1,6 @@
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use treemorph_api::delta::{DecoderOptions, Event, decode_all};
 use treemorph_api::jobs::{
@@ -11,7 +12,7 @@ use treemorph_api::ErrorCode;
 use treemorph_api::jobs::{JobRequest, MorphRequest, Outputs, SketchRequest};
 
 use super::*;
-use crate::{JobSpec, Limits};
+use crate::{JobSpec, Limits, StoredPlan};
 
 /// Records everything a job publishes, in order.
 #[derive(Default)]
@@ -21,6 +22,9 @@ struct MemorySink {
     frames: Vec<FrameOutput>,
     files: HashMap<String, Vec<u8>>,
     cancel_after: Option<usize>,
+    /// Keep the job's plan, as the service does.
+    keep_plan: bool,
+    plan: Option<Vec<u8>>,
 }
 
 impl JobSink for MemorySink {
@@ -52,6 +56,17 @@ impl JobSink for MemorySink {
     fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError> {
         self.events.push(name.to_owned());
         self.files.insert(name.to_owned(), bytes);
+        Ok(())
+    }
+
+    fn keeps_plan(&self) -> bool {
+        self.keep_plan
+    }
+
+    fn plan(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        assert!(self.keep_plan, "a plan published to a sink that keeps none");
+        self.events.push("plan".into());
+        self.plan = Some(bytes);
         Ok(())
     }
 }
@@ -86,7 +101,14 @@ fn run(
     sink: &mut MemorySink,
 ) -> Result<JobOutcome, JobError> {
     let spec = JobSpec::parse(request, &Limits::default())?;
-    PipelineRunner::default().run(&JobInput { spec: &spec, trees }, sink)
+    PipelineRunner::default().run(
+        &JobInput {
+            spec: &spec,
+            trees,
+            stored_plan: None,
+        },
+        sink,
+    )
 }
 
 #[test]
@@ -432,6 +454,7 @@ fn a_frame_at_an_instant_is_the_jobs_frame_there() {
         let input = JobInput {
             spec: &spec,
             trees: &trees,
+            stored_plan: None,
         };
         let mut sink = MemorySink::default();
         PipelineRunner::default().run(&input, &mut sink).unwrap();
@@ -468,6 +491,7 @@ fn an_unmeasured_sketch_writes_the_same_animation() {
         let input = JobInput {
             spec,
             trees: &trees,
+            stored_plan: None,
         };
         PipelineRunner::default().run(&input, &mut sink).unwrap();
         sink
@@ -495,6 +519,7 @@ fn frames_render_again_byte_for_byte() {
         let input = JobInput {
             spec,
             trees: &trees,
+            stored_plan: None,
         };
         runner.run(&input, &mut sink).unwrap();
         sink
@@ -524,6 +549,7 @@ fn frames_render_again_byte_for_byte() {
     let input = JobInput {
         spec: &spec,
         trees: &trees,
+        stored_plan: None,
     };
     for i in 0..frames {
         let glb = runner
@@ -553,6 +579,7 @@ fn instants_render_the_same_from_a_kept_plan_or_a_new_one() {
     let input = JobInput {
         spec: &spec,
         trees: &trees,
+        stored_plan: None,
     };
     let fresh = PipelineRunner::default();
     let planned = fresh.frame_at(&input, 0.375).unwrap();
@@ -567,6 +594,7 @@ fn instants_render_the_same_from_a_kept_plan_or_a_new_one() {
     let stored_input = JobInput {
         spec: &stored,
         trees: &trees,
+        stored_plan: None,
     };
     ran.run(&stored_input, &mut sink).unwrap();
     assert_eq!(ran.plans.len(), 1, "the run kept no plan");
@@ -587,6 +615,7 @@ fn an_instants_frame_record_decodes_after_the_jobs_header() {
     let input = JobInput {
         spec: &spec,
         trees: &trees,
+        stored_plan: None,
     };
     let runner = PipelineRunner::default();
     let mut sink = MemorySink::default();
@@ -644,9 +673,144 @@ fn the_plan_cache_keeps_the_latest_jobs() {
             let input = JobInput {
                 spec: &spec,
                 trees: &trees,
+                stored_plan: None,
             };
             runner.frame_at(&input, 0.5).unwrap();
         }
         assert_eq!(runner.plans.len(), (k + 1).min(crate::plans::CAPACITY));
     }
+}
+
+/// The plan a run of `input` publishes, last.
+fn stored_plan_of(input: &JobInput<'_>) -> Vec<u8> {
+    let mut sink = MemorySink {
+        keep_plan: true,
+        ..MemorySink::default()
+    };
+    PipelineRunner::default().run(input, &mut sink).unwrap();
+    assert_eq!(sink.events.last().map(String::as_str), Some("plan"));
+    sink.plan.unwrap()
+}
+
+/// A plan read back from the bytes a job stored renders what the job's
+/// own plan renders, byte for byte, for a morph and a sketch, without
+/// planning again and without asking for a tree; a stored plan that
+/// cannot be read (damaged, or written by another version) is planned
+/// again from the trees, with the same bytes. Either is read or planned
+/// once, then kept under its key.
+#[test]
+fn a_stored_plan_renders_the_same_bytes() {
+    for (request, trees) in [
+        (morph_request(5, Outputs::default()), morph_trees()),
+        (
+            heart_request(5),
+            HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]),
+        ),
+    ] {
+        let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+            stored_plan: None,
+        };
+        let plan = stored_plan_of(&input);
+        let expected = PipelineRunner::default().frame_at(&input, 0.375).unwrap();
+        let mut outdated = plan.clone();
+        outdated[12] ^= 1;
+        let mut damaged = plan.clone();
+        let middle = damaged.len() / 2;
+        damaged[middle] ^= 0x55;
+        let no_trees = HashMap::new();
+        let cases = [
+            ("stored", &plan, &no_trees),
+            ("outdated", &outdated, &trees),
+            ("damaged", &damaged, &trees),
+        ];
+        for (what, bytes, trees) in cases {
+            let reads = AtomicUsize::new(0);
+            let load = || {
+                reads.fetch_add(1, Ordering::SeqCst);
+                Some(bytes.clone())
+            };
+            let stored = JobInput {
+                spec: &spec,
+                trees,
+                stored_plan: Some(StoredPlan {
+                    key: "job/attempt",
+                    load: &load,
+                }),
+            };
+            let runner = PipelineRunner::default();
+            assert!(
+                runner.frame_at(&stored, 0.375).unwrap() == expected,
+                "{what}"
+            );
+            assert!(
+                runner.frame_at(&stored, 0.375).unwrap() == expected,
+                "{what}"
+            );
+            assert_eq!(reads.into_inner(), 1, "{what}: read once, then kept");
+        }
+    }
+}
+
+/// A run given its plan's key leaves the plan there: the instants asked
+/// next under that key need neither the stored bytes nor the trees.
+#[test]
+fn a_run_keeps_its_plan_under_its_key() {
+    let (spec, trees) = morph_job(4);
+    let loads = AtomicUsize::new(0);
+    let nothing = || {
+        loads.fetch_add(1, Ordering::SeqCst);
+        None
+    };
+    let keyed = |trees| JobInput {
+        spec: &spec,
+        trees,
+        stored_plan: Some(StoredPlan {
+            key: "job/attempt",
+            load: &nothing,
+        }),
+    };
+    let runner = PipelineRunner::default();
+    let mut sink = MemorySink::default();
+    runner.run(&keyed(&trees), &mut sink).unwrap();
+    assert_eq!(
+        loads.load(Ordering::SeqCst),
+        1,
+        "the run looked for a stored plan"
+    );
+    let no_trees = HashMap::new();
+    let glb = runner.frame_at(&keyed(&no_trees), 0.5).unwrap();
+    assert_eq!(
+        loads.load(Ordering::SeqCst),
+        1,
+        "the kept plan was loaded again"
+    );
+    let fresh = JobInput {
+        spec: &spec,
+        trees: &trees,
+        stored_plan: None,
+    };
+    assert!(glb == PipelineRunner::default().frame_at(&fresh, 0.5).unwrap());
+}
+
+/// Stored plan bytes that are not a plan this build renders are named.
+#[test]
+fn stored_plans_of_other_versions_or_damaged_are_refused() {
+    use crate::stored::{ReadError, read};
+    let (spec, trees) = morph_job(3);
+    let plan = stored_plan_of(&JobInput {
+        spec: &spec,
+        trees: &trees,
+        stored_plan: None,
+    });
+    assert!(read(&plan).is_ok());
+    assert!(matches!(read(b"glTF"), Err(ReadError::NotAPlan)));
+    let mut older = plan.clone();
+    older[12..16].copy_from_slice(&(crate::RENDER_VERSION - 1).to_le_bytes());
+    assert!(matches!(read(&older), Err(ReadError::Outdated { .. })));
+    let mut cut = plan.clone();
+    cut.truncate(plan.len() - 10);
+    assert!(matches!(read(&cut), Err(ReadError::Damaged(_))));
 }

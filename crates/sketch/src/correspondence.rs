@@ -28,7 +28,7 @@ use crate::error::{SketchEnd, SketchError};
 use crate::polygon;
 
 /// Corresponding samples of the crown silhouette and the sketched crown.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Correspondence {
     /// Samples on the crown silhouette S0, CCW: the crown cage at rest.
     pub source: Vec<Vec2>,

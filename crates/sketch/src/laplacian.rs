@@ -76,30 +76,9 @@ impl LeastSquares {
                 factor: Vec::new(),
             });
         }
-        // AᵀA, upper triangle, from the rows of A.
-        let mut by_row: Vec<Vec<(usize, f64)>> = vec![Vec::new(); rows];
-        for &(r, c, v) in entries {
-            by_row[r].push((c, v));
-        }
-        let mut triplets: Vec<Triplet<usize, usize, f64>> = Vec::new();
-        for row in &by_row {
-            for &(ci, vi) in row {
-                for &(cj, vj) in row {
-                    if ci <= cj {
-                        triplets.push(Triplet::new(ci, cj, vi * vj));
-                    }
-                }
-            }
-        }
-        let ata = SparseColMat::<usize, f64>::try_new_from_triplets(unknowns, unknowns, &triplets)
-            .map_err(|e| SketchError::Internal(format!("normal equations: {e:?}")))?;
-        let symbolic = factorize_symbolic_cholesky(
-            ata.symbolic(),
-            Side::Upper,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| SketchError::Internal(format!("symbolic Cholesky: {e:?}")))?;
+        let by_row = rows_of(rows, entries.iter().copied());
+        let ata = normal_matrix(unknowns, &by_row)?;
+        let symbolic = symbolic_cholesky(&ata)?;
         let mut factor = vec![0.0f64; symbolic.len_val()];
         let mut mem = MemBuffer::new(
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
@@ -122,6 +101,53 @@ impl LeastSquares {
             row_idx,
             vals,
             symbolic: Some(symbolic),
+            factor,
+        })
+    }
+
+    /// A system stored by [`Serialize`]: the symbolic factorisation is
+    /// computed again from A's pattern (it depends on nothing else), the
+    /// numeric factor is taken as stored, so solves give the same bits as
+    /// the system that was stored.
+    fn restored(stored: Stored) -> Result<LeastSquares, SketchError> {
+        let Stored {
+            unknowns,
+            rows,
+            col_ptr,
+            row_idx,
+            vals,
+            factor,
+        } = stored;
+        let consistent = col_ptr.len() == unknowns + 1
+            && col_ptr.windows(2).all(|w| w[0] <= w[1])
+            && col_ptr.last() == Some(&row_idx.len())
+            && row_idx.len() == vals.len()
+            && row_idx.iter().all(|&r| r < rows);
+        if !consistent {
+            return Err(SketchError::Internal(
+                "stored system is inconsistent".into(),
+            ));
+        }
+        let symbolic = if unknowns == 0 {
+            None
+        } else {
+            let (col_ptr, row_idx, vals) = (&col_ptr, &row_idx, &vals);
+            let entries = (0..unknowns)
+                .flat_map(|c| (col_ptr[c]..col_ptr[c + 1]).map(move |k| (row_idx[k], c, vals[k])));
+            let ata = normal_matrix(unknowns, &rows_of(rows, entries))?;
+            let symbolic = symbolic_cholesky(&ata)?;
+            if symbolic.len_val() != factor.len() {
+                return Err(SketchError::Internal("stored factor does not fit".into()));
+            }
+            Some(symbolic)
+        };
+        Ok(LeastSquares {
+            unknowns,
+            rows,
+            col_ptr,
+            row_idx,
+            vals,
+            symbolic,
             factor,
         })
     }
@@ -165,6 +191,92 @@ impl LeastSquares {
                 MemStack::new(mem),
             );
         }
+    }
+}
+
+/// A's entries `(column, value)` by row.
+fn rows_of(
+    rows: usize,
+    entries: impl Iterator<Item = (usize, usize, f64)>,
+) -> Vec<Vec<(usize, f64)>> {
+    let mut by_row: Vec<Vec<(usize, f64)>> = vec![Vec::new(); rows];
+    for (r, c, v) in entries {
+        by_row[r].push((c, v));
+    }
+    by_row
+}
+
+/// AᵀA, upper triangle, from the rows of A.
+fn normal_matrix(
+    unknowns: usize,
+    by_row: &[Vec<(usize, f64)>],
+) -> Result<SparseColMat<usize, f64>, SketchError> {
+    let mut triplets: Vec<Triplet<usize, usize, f64>> = Vec::new();
+    for row in by_row {
+        for &(ci, vi) in row {
+            for &(cj, vj) in row {
+                if ci <= cj {
+                    triplets.push(Triplet::new(ci, cj, vi * vj));
+                }
+            }
+        }
+    }
+    SparseColMat::<usize, f64>::try_new_from_triplets(unknowns, unknowns, &triplets)
+        .map_err(|e| SketchError::Internal(format!("normal equations: {e:?}")))
+}
+
+fn symbolic_cholesky(
+    ata: &SparseColMat<usize, f64>,
+) -> Result<SymbolicCholesky<usize>, SketchError> {
+    factorize_symbolic_cholesky(
+        ata.symbolic(),
+        Side::Upper,
+        SymmetricOrdering::Amd,
+        CholeskySymbolicParams::default(),
+    )
+    .map_err(|e| SketchError::Internal(format!("symbolic Cholesky: {e:?}")))
+}
+
+/// What of a [`LeastSquares`] is stored (borrowed to write, owned to read:
+/// the same fields in the same order).
+#[derive(serde::Serialize)]
+struct StoredRef<'a> {
+    unknowns: usize,
+    rows: usize,
+    col_ptr: &'a [usize],
+    row_idx: &'a [usize],
+    vals: &'a [f64],
+    factor: &'a [f64],
+}
+
+#[derive(serde::Deserialize)]
+struct Stored {
+    unknowns: usize,
+    rows: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    vals: Vec<f64>,
+    factor: Vec<f64>,
+}
+
+impl serde::Serialize for LeastSquares {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        StoredRef {
+            unknowns: self.unknowns,
+            rows: self.rows,
+            col_ptr: &self.col_ptr,
+            row_idx: &self.row_idx,
+            vals: &self.vals,
+            factor: &self.factor,
+        }
+        .serialize(serializer)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for LeastSquares {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let stored = Stored::deserialize(deserializer)?;
+        LeastSquares::restored(stored).map_err(serde::de::Error::custom)
     }
 }
 

@@ -26,7 +26,7 @@ use crate::mct::{CageKind, Mct};
 use crate::view::Camera;
 
 /// The lobe meshes of every cage and, once built, their factorised system.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct LobeSource {
     /// Per cage: first vertex / first triangle (one past the last cage: the
     /// totals).
@@ -38,6 +38,7 @@ pub(crate) struct LobeSource {
     triangles: Vec<[u32; 3]>,
     /// Per vertex: the flat cage-vertex index constraining it, or NONE.
     constraint: Vec<u32>,
+    #[serde(skip)]
     system: OnceLock<Result<LobeSystem, SketchError>>,
 }
 

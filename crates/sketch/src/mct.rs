@@ -47,7 +47,7 @@ use crate::polygon;
 use crate::view::Camera;
 
 /// What a cage is the silhouette of.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CageKind {
     /// The crown: the root group's GOL (the MCT root).
@@ -61,7 +61,7 @@ pub enum CageKind {
 }
 
 /// One node of the multiscale cage tree.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Cage {
     pub(crate) kind: CageKind,
     pub(crate) group: Option<GroupId>,
@@ -128,7 +128,7 @@ impl Cage {
 }
 
 /// The cage tree and what drives each chain.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Mct {
     pub cages: Vec<Cage>,
     /// Control cage of each node (`NONE`: the node follows no cage).

@@ -24,7 +24,7 @@ pub enum Method {
 /// Tuning of the sketch pipeline. Screen-space lengths are fractions of the
 /// crown silhouette's screen diagonal (the diagonal of its NDC bounding
 /// box), so the same options work at any camera distance.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct SketchOptions {
     /// Multiscale cage tree or single global cage (default

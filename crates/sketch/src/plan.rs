@@ -22,7 +22,7 @@ use crate::time::clamp_t;
 use crate::view::{Camera, View};
 
 /// Where a right-hand-side value of a chain system comes from.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) enum Source {
     /// The displacement of a node solved at an earlier level (a junction).
     Node(NodeId),
@@ -32,7 +32,7 @@ pub(crate) enum Source {
 
 /// The chains of one hybrid order: one factorised least-squares system
 /// (block diagonal, one block per chain).
-#[derive(Debug)]
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Level {
     pub ls: LeastSquares,
     /// The node each unknown is (the chains' inner nodes).
@@ -44,7 +44,7 @@ pub(crate) struct Level {
 }
 
 /// A chain subtree that wilts: its nodes shrink toward the junction.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Wilt {
     /// The node the subtree grows from (on a living chain, or the root).
     pub junction: NodeId,
@@ -64,7 +64,7 @@ const PACE_SAMPLES: usize = 24;
 /// multiscale cage tree with its mean value coordinates, self-adaptive
 /// corrections and pruning, and the factorised Laplacian systems of the
 /// chains. Frames are then made by a [`crate::Sketcher`].
-#[derive(Debug)]
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
 pub struct SketchPlan {
     pub(crate) options: SketchOptions,
     pub(crate) camera: Camera,

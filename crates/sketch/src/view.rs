@@ -168,7 +168,7 @@ impl View {
 }
 
 /// How a camera maps depth to the screen.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 enum Projection {
     Perspective { tan_half: f32 },
     Orthographic { half_height: f32 },
@@ -182,7 +182,7 @@ enum Projection {
 /// the view plane only — at constant depth — so a displacement in NDC maps
 /// to a world displacement along the camera's right and up axes
 /// ([`Camera::world_delta`]), linear in the NDC displacement.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
     eye: Vec3,
     right: Vec3,

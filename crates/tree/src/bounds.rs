@@ -1,7 +1,7 @@
 use glam::Vec3;
 
 /// An axis-aligned bounding box in metres.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     /// Smallest corner.
     pub min: Vec3,

@@ -24,7 +24,7 @@ use crate::model::{Bark, LeafMaterial, NodeId, Skeleton, Tree};
 ///
 /// Every branch of the skeleton lies on exactly one strand; consecutive ids
 /// of a strand are parent and child.
-#[derive(Clone, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Strands {
     offsets: Vec<u32>,
     nodes: Vec<NodeId>,
@@ -122,7 +122,7 @@ impl Strands {
 }
 
 /// The fixed part of a leaf in a frame sequence.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct FrameLeafTopology {
     /// The node whose branch the leaf rides on in every frame.
     pub node: NodeId,
@@ -132,7 +132,7 @@ pub struct FrameLeafTopology {
 }
 
 /// What every frame of a sequence shares.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameTopology {
     /// Parent of each node (`None` for the root).
     pub parents: Vec<Option<NodeId>>,
@@ -173,7 +173,7 @@ impl FrameTopology {
 }
 
 /// A leaf in one frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameLeaf {
     /// World position of the anchor (base of the blade), metres.
     pub anchor: Vec3,
@@ -213,16 +213,19 @@ impl JumpMeter {
     /// of topology), in metres; keeps this frame's.
     pub fn jump(&mut self, frame: &Frame) -> f32 {
         let count = frame.positions.len() + 4 * frame.leaves.len();
-        let mut max_jump = 0.0f32;
-        if self.has_previous && self.previous.len() == count {
-            for (p, q) in frame.points().zip(&self.previous) {
-                max_jump = max_jump.max(p.distance(*q));
+        let compare = self.has_previous && self.previous.len() == count;
+        self.previous.resize(count, Vec3::ZERO);
+        // One pass (a leaf's corners cost two rotations), squared
+        // distances: the square root of the largest is the largest root.
+        let mut max2 = 0.0f32;
+        for (kept, p) in self.previous.iter_mut().zip(frame.points()) {
+            if compare {
+                max2 = max2.max(p.distance_squared(*kept));
             }
+            *kept = p;
         }
-        self.previous.clear();
-        self.previous.extend(frame.points());
         self.has_previous = true;
-        max_jump
+        max2.sqrt()
     }
 
     /// Forgets the previous frame (the next jump is 0).
@@ -234,7 +237,7 @@ impl JumpMeter {
 /// One in-between tree: the varying part of a frame sequence.
 /// `Frame::default()` is an empty frame at t = 0, a buffer for a morpher
 /// or sketcher to fill.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Frame {
     /// Animation time in [0, 1].
     pub t: f32,

@@ -158,7 +158,7 @@ pub struct Leaf {
 }
 
 /// Bark appearance.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Bark {
     /// Base colour, linear RGBA in [0, 1] (multiplied with the texture).
     pub color: [f32; 4],
@@ -176,7 +176,7 @@ impl Default for Bark {
 }
 
 /// A leaf material: a texture whose alpha channel cuts out the blade.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LeafMaterial {
     /// Human-readable name (e.g. `"ovate"`).
     pub name: String,

@@ -84,11 +84,29 @@ impl RgbaImage {
 
 /// A PNG image kept as its encoded bytes, with its size read from the
 /// header. Cloning is cheap (the bytes are shared).
-#[derive(Clone, Debug, PartialEq, Eq)]
+///
+/// Serialised as its PNG bytes; deserialising reads the header again with
+/// [`Texture::from_png`], so a stored texture is checked as an uploaded one.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(into = "Vec<u8>", try_from = "Vec<u8>")]
 pub struct Texture {
     png: Arc<[u8]>,
     width: u32,
     height: u32,
+}
+
+impl From<Texture> for Vec<u8> {
+    fn from(texture: Texture) -> Vec<u8> {
+        texture.png.to_vec()
+    }
+}
+
+impl TryFrom<Vec<u8>> for Texture {
+    type Error = TextureError;
+
+    fn try_from(png: Vec<u8>) -> Result<Texture, TextureError> {
+        Texture::from_png(png, DEFAULT_MAX_TEXTURE_SIDE)
+    }
 }
 
 /// Textures larger than this per side are refused by default.

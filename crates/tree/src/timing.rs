@@ -85,7 +85,7 @@ impl ScheduleOptions {
 }
 
 /// A window of `t`, stored as its start and inverse length.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Window {
     start: f32,
     inv_len: f32,
@@ -133,7 +133,7 @@ impl Window {
 /// Constant acceleration over the first `a` of a window, constant speed,
 /// constant deceleration over the last `a`: C¹ for `a > 0`, exactly 0 at 0
 /// and 1 at 1.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Ease {
     a: f32,
     /// Top speed, `1 / (1 − a)`.
@@ -179,7 +179,7 @@ const PACE_FLOOR: f32 = 0.05;
 /// instants (the farthest any node or leaf corner moves between
 /// neighbours; a morph takes 64); a little time (5 % of the mean) is kept for every
 /// stretch, so nothing is skipped.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Pace {
     /// Share of the motion covered at `τ = i / (len − 1)`, increasing from
     /// exactly 0 to exactly 1.

@@ -17,20 +17,15 @@
 //! the plausibility check costs tens of milliseconds per frame on a
 //! 5,000-branch tree, the capsules a few, and they bound the tubes (a
 //! capsule pair may touch where the polygonal tubes just miss, by at most
-//! the polygon's sagitta). The broad phase is a uniform grid over the
-//! capsules' bounds in a `HashMap`: written here because it is a dozen
-//! lines and a collision crate would bring a physics engine ([`CellMap`]
-//! hashes the cells).
+//! the polygon's sagitta). The broad phase is the spatial hash the
+//! plausibility check uses for triangles ([`TriangleGrid`]), over the
+//! capsules' bounds: a collision crate would bring a physics engine.
 
-use glam::{IVec3, Vec3};
-use treemorph_tree::geom::CellMap;
+use glam::Vec3;
 use treemorph_tree::{Frame, Strands};
 
 use crate::geometry::segment_segment_sq;
-
-/// A capsule covering more cells than this is tested against every other
-/// capsule of the cells it does cover only (bounds the grid's size).
-const MAX_CELLS: i32 = 4096;
+use crate::grid::TriangleGrid;
 
 /// Pairs of pieces touching per frame of a sequence, and the crossings
 /// they make (see the module docs).
@@ -39,8 +34,10 @@ pub struct CrossingMeter {
     /// Per frame measured: the touching piece pairs, sorted.
     frames: Vec<Vec<(u32, u32)>>,
     capsules: Vec<Capsule>,
-    /// Capsules per grid cell; emptied, not dropped, between frames.
-    cells: CellMap<Vec<u32>>,
+    /// The capsules' bounds and a spatial hash of them, rebuilt per frame
+    /// in buffers kept between frames.
+    boxes: Vec<(Vec3, Vec3)>,
+    grid: TriangleGrid,
 }
 
 /// One drawn segment of a piece, with the larger of its radii.
@@ -109,26 +106,30 @@ impl CrossingMeter {
         }
     }
 
-    /// The sorted pairs of pieces with overlapping capsules.
+    /// The sorted pairs of pieces with overlapping capsules: each capsule
+    /// against those after it whose bounds come near its own.
     fn touching(&mut self) -> Vec<(u32, u32)> {
-        let cell = cell_size(&self.capsules);
-        self.cells.values_mut().for_each(Vec::clear);
-        for (k, c) in self.capsules.iter().enumerate() {
-            let (lo, hi) = bounds(c, cell);
-            for cell in cells(lo, hi) {
-                self.cells.entry(cell).or_default().push(k as u32);
-            }
-        }
+        self.boxes.clear();
+        self.boxes.extend(self.capsules.iter().map(|c| {
+            let r = Vec3::splat(c.r);
+            (c.a.min(c.b) - r, c.a.max(c.b) + r)
+        }));
+        self.grid.build(&self.boxes, cell_size(&self.capsules));
         let mut pairs = Vec::new();
-        for members in self.cells.values() {
-            for (x, &i) in members.iter().enumerate() {
-                for &j in &members[x + 1..] {
-                    let (p, q) = (&self.capsules[i as usize], &self.capsules[j as usize]);
-                    if let Some(pair) = overlap(p, q) {
-                        pairs.push(pair);
-                    }
+        for (i, p) in self.capsules.iter().enumerate() {
+            let (lo, hi) = self.boxes[i];
+            let (capsules, boxes) = (&self.capsules, &self.boxes);
+            self.grid.any_near(lo, hi, |j| {
+                let (jlo, jhi) = boxes[j as usize];
+                let apart = jlo.cmpgt(hi).any() || jhi.cmplt(lo).any();
+                if j as usize > i
+                    && !apart
+                    && let Some(pair) = overlap(p, &capsules[j as usize])
+                {
+                    pairs.push(pair);
                 }
-            }
+                false
+            });
         }
         pairs.sort_unstable();
         pairs.dedup();
@@ -164,26 +165,6 @@ fn cell_size(capsules: &[Capsule]) -> f32 {
     } else {
         1.0
     }
-}
-
-/// The cell range of a capsule's bounds.
-fn bounds(c: &Capsule, cell: f32) -> (IVec3, IVec3) {
-    let lo = (c.a.min(c.b) - Vec3::splat(c.r)) / cell;
-    let hi = (c.a.max(c.b) + Vec3::splat(c.r)) / cell;
-    (lo.floor().as_ivec3(), hi.floor().as_ivec3())
-}
-
-/// The cells from `lo` to `hi`, at most [`MAX_CELLS`] of them (a longer
-/// range is cut short along z, then y: such a capsule still meets every
-/// capsule in the cells kept).
-fn cells(lo: IVec3, hi: IVec3) -> impl Iterator<Item = IVec3> {
-    let span = (hi - lo + IVec3::ONE).max(IVec3::ONE);
-    let x_count = span.x.min(MAX_CELLS);
-    let y_count = span.y.min((MAX_CELLS / x_count).max(1));
-    let z_count = span.z.min((MAX_CELLS / (x_count * y_count)).max(1));
-    (0..x_count).flat_map(move |x| {
-        (0..y_count).flat_map(move |y| (0..z_count).map(move |z| lo + IVec3::new(x, y, z)))
-    })
 }
 
 #[cfg(test)]

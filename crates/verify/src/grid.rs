@@ -1,4 +1,5 @@
-//! A spatial hash of triangles for exact range queries.
+//! A spatial hash of triangles (or of any boxes: the crossing meter puts
+//! branch capsules in it) for exact range queries.
 //!
 //! Each triangle is registered in every cell its bounding box overlaps, so
 //! a triangle within distance `r` of a point has a point in one of the
@@ -159,6 +160,71 @@ impl TriangleGrid {
                                 return true;
                             }
                         }
+                    }
+                }
+            }
+        }
+        false
+    }
+}
+
+/// Cells per axis of an [`Occupancy`]: 64³ bits, 32 KiB, which stays in
+/// cache while a sweep reads every triangle's bounds against it.
+const OCCUPANCY_CELLS: i32 = 64;
+
+/// A coarse bitmap over a frame's bounds: which cells of a 64³ lattice a
+/// set of boxes touches. Asking whether a box meets any of them costs a
+/// few bit tests, so a pass over every triangle of a frame skips, at once,
+/// the triangles near none of the few boxes a sweep looks for. Boxes
+/// beyond the bounds are clamped onto its border cells, the same way when
+/// marked and when asked, so two boxes that meet always meet here.
+#[derive(Clone, Debug, Default)]
+pub struct Occupancy {
+    lo: Vec3,
+    /// Cells per metre along each axis.
+    scale: Vec3,
+    bits: Vec<u64>,
+}
+
+impl Occupancy {
+    /// Empties the map and spans it over `[lo, hi]`.
+    pub fn reset(&mut self, lo: Vec3, hi: Vec3) {
+        let n = OCCUPANCY_CELLS as f32;
+        let extent = (hi - lo).max(Vec3::splat(1e-6));
+        self.lo = lo;
+        self.scale = Vec3::splat(n) / extent;
+        let words = (OCCUPANCY_CELLS.pow(3) as usize).div_ceil(64);
+        self.bits.clear();
+        self.bits.resize(words, 0);
+    }
+
+    fn cell(&self, p: Vec3) -> IVec3 {
+        let c = ((p - self.lo) * self.scale).as_ivec3();
+        c.clamp(IVec3::ZERO, IVec3::splat(OCCUPANCY_CELLS - 1))
+    }
+
+    fn index(c: IVec3) -> usize {
+        ((c.z * OCCUPANCY_CELLS + c.y) * OCCUPANCY_CELLS + c.x) as usize
+    }
+
+    /// Marks the cells the box `[lo, hi]` touches.
+    pub fn mark(&mut self, lo: Vec3, hi: Vec3) {
+        let (a, b) = (self.cell(lo), self.cell(hi));
+        for_each_cell((a, b), |c| {
+            let i = Self::index(c);
+            self.bits[i / 64] |= 1 << (i % 64);
+        });
+    }
+
+    /// Whether the box `[lo, hi]` touches a marked cell.
+    pub fn any(&self, lo: Vec3, hi: Vec3) -> bool {
+        let (a, b) = (self.cell(lo), self.cell(hi));
+        for z in a.z..=b.z {
+            for y in a.y..=b.y {
+                for x in a.x..=b.x {
+                    let i = Self::index(IVec3::new(x, y, z));
+                    if self.bits[i / 64] & (1 << (i % 64)) != 0 {
+                        return true;
                     }
                 }
             }

@@ -9,6 +9,7 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 
 use crate::geometry::{point_triangle_sq, triangle_triangle_sq};
 use crate::grid::TriangleGrid;
+use crate::sweep::{Found, LeafQuestion, Sweep, Triangles, VertexQuestion, box_gap_sq};
 
 /// How the leaf mesh's vertices group into leaves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -256,6 +257,23 @@ pub struct Plausibility {
     tri_piece: Vec<u32>,
     boxes: Vec<(Vec3, Vec3)>,
     grid: TriangleGrid,
+    /// The grid's cell side this frame, and whether it is built yet: it is
+    /// built only when a proof from the last frame and the local search
+    /// leave a leaf or a piece open, which on most frames of a sequence
+    /// none does.
+    cell: f32,
+    grid_built: bool,
+    /// What settles the leaves and pieces the proofs leave open.
+    sweep: Sweep,
+    /// The frame's bounds.
+    frame_bounds: (Vec3, Vec3),
+    /// Per piece, the bounds of its visible triangles.
+    piece_boxes: Vec<(Vec3, Vec3)>,
+    /// Leaves and pieces left open by the shortcuts this frame, and the
+    /// open leaves' vertices.
+    open_leaves: Vec<OpenLeaf>,
+    open_pieces: Vec<u32>,
+    open_points: Vec<Vec3>,
     /// Visible triangles by piece: `piece_tris[piece_starts[p]..piece_starts[p + 1]]`.
     piece_starts: Vec<u32>,
     piece_tris: Vec<u32>,
@@ -279,6 +297,47 @@ pub struct Plausibility {
     /// (by rank among the leaf's) and a triangle (by index in the index
     /// buffer) — tried first on the next.
     leaf_proof: Vec<(u32, u32)>,
+}
+
+/// The frame's visible triangles and one leaf's vertices, for the leaf
+/// searches.
+#[derive(Clone, Copy)]
+struct Near<'a> {
+    tris: &'a [[Vec3; 3]],
+    boxes: &'a [(Vec3, Vec3)],
+    pts: &'a [Vec3],
+}
+
+impl<'a> Near<'a> {
+    fn of(tris: &'a [[Vec3; 3]], boxes: &'a [(Vec3, Vec3)], pts: &'a [Vec3]) -> Near<'a> {
+        Near { tris, boxes, pts }
+    }
+
+    /// The rank of the leaf's first vertex within `allowed2` of visible
+    /// triangle `t`, if any (`lo`, `hi`: the leaf's bounds).
+    fn leaf(self, (lo, hi): (Vec3, Vec3), allowed2: f32, reference: bool, t: u32) -> Option<u32> {
+        let b = self.boxes[t as usize];
+        if box_gap_sq((lo, hi), b) > allowed2 {
+            return None;
+        }
+        let tri = self.tris[t as usize];
+        // A vertex's gap to the triangle's bounds is cheap and rules most
+        // vertices out before the exact distance.
+        let k = self.pts.iter().position(|&p| {
+            (reference || box_gap_sq((p, p), b) <= allowed2)
+                && point_triangle_sq(p, tri) <= allowed2
+        })?;
+        Some(k as u32)
+    }
+}
+
+/// A leaf the shortcuts could not settle: its index, size and allowed
+/// distance, for the exhaustive search.
+#[derive(Clone, Copy, Debug)]
+struct OpenLeaf {
+    leaf: u32,
+    size: f32,
+    allowed: f32,
 }
 
 /// A proof that a piece comes within reach of another, kept between
@@ -313,30 +372,65 @@ fn union(parent: &mut [u32], a: u32, b: u32) {
     }
 }
 
-fn check_mesh(mesh: &'static str, positions: &[Vec3], indices: &[u32]) -> Result<(), VerifyError> {
+/// Checks an index buffer against its vertices (`known`: the same buffer
+/// and vertex count passed last frame, so only their number of indices is
+/// looked at).
+fn check_indices(
+    mesh: &'static str,
+    vertices: usize,
+    indices: &[u32],
+    known: bool,
+) -> Result<(), VerifyError> {
     if !indices.len().is_multiple_of(3) {
         return Err(VerifyError::NotTriangles {
             mesh,
             count: indices.len(),
         });
     }
-    if let Some(&index) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+    if known {
+        return Ok(());
+    }
+    if let Some(&index) = indices.iter().find(|&&i| i as usize >= vertices) {
         return Err(VerifyError::IndexOutOfRange {
             mesh,
             index,
-            vertices: positions.len(),
+            vertices,
         });
-    }
-    if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
-        return Err(VerifyError::NotFinite { mesh, vertex });
     }
     Ok(())
 }
 
-fn box_gap_sq((alo, ahi): (Vec3, Vec3), (blo, bhi): (Vec3, Vec3)) -> f32 {
-    let d = (blo - ahi).max(alo - bhi).max(Vec3::ZERO);
-    d.length_squared()
+/// The bounds of `positions` (folded into `bounds`), refusing a position
+/// that is not finite. One pass: the sum of all coordinates is finite
+/// when every coordinate is (a sum that overflows only sends it to the
+/// exact scan).
+fn checked_bounds(
+    mesh: &'static str,
+    positions: &[Vec3],
+    bounds: (Vec3, Vec3),
+) -> Result<(Vec3, Vec3), VerifyError> {
+    let (mut lo, mut hi, mut sum) = (bounds.0, bounds.1, Vec3::ZERO);
+    for &p in positions {
+        lo = lo.min(p);
+        hi = hi.max(p);
+        sum += p;
+    }
+    if !sum.is_finite()
+        && let Some(vertex) = positions.iter().position(|p| !p.is_finite())
+    {
+        return Err(VerifyError::NotFinite { mesh, vertex });
+    }
+    Ok((lo, hi))
 }
+
+/// Vertices of an open piece (its first, which for a tube are its base
+/// ring) the sweep asks about; a piece none of them settles goes to the
+/// exhaustive search.
+const BASE_VERTICES: usize = 8;
+
+/// More open questions than this in a frame go to the triangle grid
+/// instead of a sweep.
+const MANY_OPEN: usize = 4_000;
 
 impl Plausibility {
     /// A context with empty buffers.
@@ -384,13 +478,18 @@ impl Plausibility {
                 options.leaf_slack, options.branch_reach
             )));
         }
-        check_mesh("branch", meshes.branch_positions, meshes.branch_indices)?;
-        check_mesh("leaf", meshes.leaf_positions, meshes.leaf_indices)?;
-        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        for &p in meshes.branch_positions.iter().chain(meshes.leaf_positions) {
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
+        let (branches, leaves) = (meshes.branch_positions.len(), meshes.leaf_positions.len());
+        let known_branches =
+            self.branch_vertices == branches && self.branch_key == meshes.branch_indices;
+        let same_leaf_indices = self.leaf_key == meshes.leaf_indices;
+        let known_leaves =
+            same_leaf_indices && self.leaf_key_layout.is_some_and(|(_, n)| n == leaves);
+        check_indices("branch", branches, meshes.branch_indices, known_branches)?;
+        check_indices("leaf", leaves, meshes.leaf_indices, known_leaves)?;
+        let empty = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let bounds = checked_bounds("branch", meshes.branch_positions, empty)?;
+        let (lo, hi) = checked_bounds("leaf", meshes.leaf_positions, bounds)?;
+        self.frame_bounds = (lo, hi);
         let height = if lo.y <= hi.y { hi.y - lo.y } else { 0.0 };
         let diagonal = if lo.x <= hi.x {
             (hi - lo).length()
@@ -398,33 +497,49 @@ impl Plausibility {
             0.0
         };
 
-        self.label_pieces(meshes);
-        self.group_leaves(meshes)?;
+        self.label_pieces(meshes, known_branches);
+        self.group_leaves(meshes, same_leaf_indices)?;
         self.collect_triangles(meshes);
         // Cells of about the branch reach (and twice a typical leaf's
         // allowance): a query spans a cell or two each way, and a thin
         // tube's triangle sits in one or two cells, which keeps the build
         // (the bulk of a clean frame's cost) short; bounded below so a
         // flat or tiny frame stays sane.
-        let cell = (0.02 * height).max(diagonal / 1024.0).max(1e-6);
-        self.grid.build(&self.boxes, cell);
+        self.cell = (0.02 * height).max(diagonal / 1024.0).max(1e-6);
+        self.grid_built = false;
 
         let mut report = Report {
             height,
             ..Report::default()
         };
-        self.check_leaves(meshes, options, height, reference, &mut report);
-        self.check_pieces(meshes, options, height, reference, &mut report);
+        let reach = options.branch_reach * height;
+        self.open_leaves(meshes, options.leaf_slack * height, reference, &mut report);
+        self.open_pieces(meshes, reach, reference, &mut report);
+        // A sweep reads every triangle once: worth it for the few hundred
+        // questions a frame of a sequence leaves open, not for a first
+        // frame, where every leaf and piece is open and the triangle grid
+        // answers each in a few cells.
+        let many = self.open_leaves.len() + BASE_VERTICES * self.open_pieces.len() > MANY_OPEN;
+        let found = if reference || many {
+            Found {
+                leaves: self.search_leaves(meshes, reference),
+                pieces: vec![None; self.open_pieces.len()],
+            }
+        } else {
+            self.sweep_open(meshes, reach)
+        };
+        self.settle_leaves(meshes, options, found.leaves, reference, &mut report);
+        self.settle_pieces(meshes, found.pieces, reach, reference, &mut report);
         Ok(report)
     }
 
     /// Labels branch vertices by connected component, unless the index
     /// buffer is the one labelled last time.
-    fn label_pieces(&mut self, meshes: &MeshView<'_>) {
-        let n = meshes.branch_positions.len();
-        if self.branch_vertices == n && self.branch_key == meshes.branch_indices {
+    fn label_pieces(&mut self, meshes: &MeshView<'_>, known: bool) {
+        if known {
             return;
         }
+        let n = meshes.branch_positions.len();
         self.branch_key.clear();
         self.branch_key.extend_from_slice(meshes.branch_indices);
         self.branch_vertices = n;
@@ -472,10 +587,13 @@ impl Plausibility {
     }
 
     /// Groups leaf vertices into leaves, unless nothing changed.
-    fn group_leaves(&mut self, meshes: &MeshView<'_>) -> Result<(), VerifyError> {
+    fn group_leaves(
+        &mut self,
+        meshes: &MeshView<'_>,
+        same_indices: bool,
+    ) -> Result<(), VerifyError> {
         let n = meshes.leaf_positions.len();
         let key = (meshes.leaves, n);
-        let same_indices = self.leaf_key == meshes.leaf_indices;
         if self.leaf_key_layout == Some(key)
             && (same_indices || matches!(meshes.leaves, LeafLayout::Uniform { .. }))
         {
@@ -578,8 +696,13 @@ impl Plausibility {
         }
         self.piece_starts.clear();
         self.piece_starts.resize(self.pieces + 1, 0);
-        for &piece in &self.tri_piece {
+        self.piece_boxes.clear();
+        self.piece_boxes
+            .resize(self.pieces, (Vec3::INFINITY, Vec3::NEG_INFINITY));
+        for (&piece, &(lo, hi)) in self.tri_piece.iter().zip(&self.boxes) {
             self.piece_starts[piece as usize + 1] += 1;
+            let b = &mut self.piece_boxes[piece as usize];
+            *b = (b.0.min(lo), b.1.max(hi));
         }
         for i in 0..self.pieces {
             self.piece_starts[i + 1] += self.piece_starts[i];
@@ -597,87 +720,264 @@ impl Plausibility {
         }
     }
 
-    fn check_leaves(
+    /// Builds this frame's grid unless it is built.
+    fn ensure_grid(&mut self) {
+        if !self.grid_built {
+            self.grid.build(&self.boxes, self.cell);
+            self.grid_built = true;
+        }
+    }
+
+    /// Leaf `leaf`'s vertices into `scratch`; its size (0 for a leaf not
+    /// drawn) and bounds.
+    fn leaf_points(&mut self, meshes: &MeshView<'_>, leaf: usize) -> (Vec3, Vec3) {
+        let vs = &self.leaf_vertices
+            [self.leaf_starts[leaf] as usize..self.leaf_starts[leaf + 1] as usize];
+        self.scratch.clear();
+        self.scratch
+            .extend(vs.iter().map(|&v| meshes.leaf_positions[v as usize]));
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for &p in &self.scratch {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+        (lo, hi)
+    }
+
+    /// The size of the leaf in `scratch`: the largest distance between two
+    /// of its vertices.
+    fn leaf_size(&self) -> f32 {
+        let pts = &self.scratch;
+        let mut size2 = 0.0f32;
+        for (i, a) in pts.iter().enumerate() {
+            for b in &pts[i + 1..] {
+                size2 = size2.max(a.distance_squared(*b));
+            }
+        }
+        size2.sqrt()
+    }
+
+    /// Whether last frame's proof of `leaf` (in `scratch`) still holds
+    /// within `allowed2`: its vertex within reach of its triangle, still
+    /// visible.
+    fn proof_holds(&self, leaf: usize, allowed2: f32) -> bool {
+        let Some(&(k, t)) = self.leaf_proof.get(leaf) else {
+            return false;
+        };
+        matches!(self.visible_of.get(t as usize), Some(&s) if s != u32::MAX)
+            && (k as usize) < self.scratch.len()
+            && point_triangle_sq(
+                self.scratch[k as usize],
+                self.tris[self.visible_of[t as usize] as usize],
+            ) <= allowed2
+    }
+
+    /// Whether the leaf in `scratch` is attached by a shortcut: last
+    /// frame's proof (a vertex within reach of a triangle still visible),
+    /// or any triangle of the piece that proof's triangle belongs to (a
+    /// leaf stays on its twig while it moves along it). Keeps a new proof.
+    fn leaf_settled(&mut self, leaf: usize, bounds: (Vec3, Vec3), allowed2: f32) -> bool {
+        if self.proof_holds(leaf, allowed2) {
+            return true;
+        }
+        // Its own twig, else its neighbours' (leaves are numbered along
+        // their twigs, so a leaf just unfolded, with no proof yet, mostly
+        // sits on the twig of the leaf before or after it).
+        let hint = |l: usize| {
+            let &(_, t) = self.leaf_proof.get(l)?;
+            let &v = self.branch_key.get(3 * t as usize)?;
+            Some(self.piece_of[v as usize])
+        };
+        let mut pieces = [
+            hint(leaf),
+            leaf.checked_sub(1).and_then(hint),
+            hint(leaf + 1),
+        ];
+        if pieces[1] == pieces[0] {
+            pieces[1] = None;
+        }
+        if pieces[2] == pieces[0] || pieces[2] == pieces[1] {
+            pieces[2] = None;
+        }
+        for piece in pieces.into_iter().flatten() {
+            let list = self.piece_starts[piece as usize] as usize
+                ..self.piece_starts[piece as usize + 1] as usize;
+            let hit = self.piece_tris[list].iter().find_map(|&t| {
+                let near = Near::of(&self.tris, &self.boxes, &self.scratch);
+                near.leaf(bounds, allowed2, false, t).map(|k| (k, t))
+            });
+            if let Some((k, t)) = hit {
+                self.leaf_proof[leaf] = (k, self.tri_orig[t as usize]);
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Leaves not settled by a shortcut, into `open_leaves` (every leaf in
+    /// the reference); counts the leaves drawn.
+    fn open_leaves(
         &mut self,
         meshes: &MeshView<'_>,
-        options: &PlausibilityOptions,
-        height: f32,
+        slack: f32,
         reference: bool,
         report: &mut Report,
     ) {
-        let slack = options.leaf_slack * height;
         let leaf_count = self.leaf_starts.len() - 1;
+        if !reference && self.leaf_proof.len() != leaf_count {
+            self.leaf_proof.clear();
+            self.leaf_proof.resize(leaf_count, (u32::MAX, u32::MAX));
+        }
+        let mut open = std::mem::take(&mut self.open_leaves);
+        open.clear();
         for leaf in 0..leaf_count {
-            let vs = &self.leaf_vertices
-                [self.leaf_starts[leaf] as usize..self.leaf_starts[leaf + 1] as usize];
-            self.scratch.clear();
-            self.scratch
-                .extend(vs.iter().map(|&v| meshes.leaf_positions[v as usize]));
-            let pts = &self.scratch;
-            let mut size2 = 0.0f32;
-            for (i, a) in pts.iter().enumerate() {
-                for b in &pts[i + 1..] {
-                    size2 = size2.max(a.distance_squared(*b));
-                }
-            }
-            if size2 <= 0.0 {
+            let (lo, hi) = self.leaf_points(meshes, leaf);
+            // Its vertices all coincide (size 0) exactly when its bounds
+            // are a point: a leaf not drawn.
+            let side = (hi - lo).max_element();
+            if side <= 0.0 {
                 continue;
             }
             report.leaves += 1;
-            let size = size2.sqrt();
-            let allowed = 0.5 * size + slack;
-            let allowed2 = allowed * allowed;
-            let (mut lo, mut hi) = (pts[0], pts[0]);
-            for &p in pts.iter() {
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-            let (tris, boxes) = (&self.tris, &self.boxes);
-            // Last frame's proof first: a vertex within reach of a triangle
-            // that is still visible settles it at once.
-            if !reference
-                && let Some(&(k, t)) = self.leaf_proof.get(leaf)
-                && let Some(&s) = self.visible_of.get(t as usize)
-                && s != u32::MAX
-                && (k as usize) < pts.len()
-                && point_triangle_sq(pts[k as usize], tris[s as usize]) <= allowed2
-            {
+            // Half the longest side plus the slack is at most its allowed
+            // distance: a proof within it needs no exact size.
+            let least = 0.5 * side + slack;
+            if !reference && self.proof_holds(leaf, least * least) {
                 continue;
             }
-            let mut proof = None;
-            let attached = self.grid.any_near(lo - allowed, hi + allowed, |t| {
-                let b = boxes[t as usize];
-                if box_gap_sq((lo, hi), b) > allowed2 {
-                    return false;
-                }
-                let tri = tris[t as usize];
-                // A vertex's gap to the triangle's bounds is cheap and
-                // rules most vertices out before the exact distance.
-                let hit = pts.iter().position(|&p| {
-                    (reference || box_gap_sq((p, p), b) <= allowed2)
-                        && point_triangle_sq(p, tri) <= allowed2
-                });
-                if let Some(k) = hit {
-                    proof = Some((k as u32, t));
-                }
-                hit.is_some()
-            });
-            if let Some((k, t)) = proof
-                && !reference
-            {
-                if self.leaf_proof.len() != leaf_count {
-                    self.leaf_proof.clear();
-                    self.leaf_proof.resize(leaf_count, (u32::MAX, u32::MAX));
-                }
-                self.leaf_proof[leaf] = (k, self.tri_orig[t as usize]);
-            }
-            if !attached {
-                report.floating.push(FloatingLeaf {
+            let size = self.leaf_size();
+            let allowed = 0.5 * size + slack;
+            if reference || !self.leaf_settled(leaf, (lo, hi), allowed * allowed) {
+                open.push(OpenLeaf {
                     leaf: leaf as u32,
-                    gap: f32::NAN,
-                    allowed,
                     size,
+                    allowed,
                 });
+            }
+        }
+        self.open_leaves = open;
+    }
+
+    /// For each open leaf, a vertex (by rank) and a visible triangle
+    /// within its allowed distance, if any: one query of the triangle grid
+    /// per leaf, the first triangle found (the fast check first tries the
+    /// piece the leaf before was found on).
+    fn search_leaves(&mut self, meshes: &MeshView<'_>, reference: bool) -> Vec<Option<(u32, u32)>> {
+        self.ensure_grid();
+        let open = std::mem::take(&mut self.open_leaves);
+        let mut hits = Vec::with_capacity(open.len());
+        // The piece the last leaf was found on: leaves are numbered along
+        // their twigs, so most are found on their predecessor's twig.
+        let mut last = None;
+        for o in &open {
+            let (lo, hi) = self.leaf_points(meshes, o.leaf as usize);
+            let near = Near::of(&self.tris, &self.boxes, &self.scratch);
+            let allowed2 = o.allowed * o.allowed;
+            let on_last = last.filter(|_| !reference).and_then(|piece: u32| {
+                let list = self.piece_starts[piece as usize] as usize
+                    ..self.piece_starts[piece as usize + 1] as usize;
+                self.piece_tris[list]
+                    .iter()
+                    .find_map(|&t| near.leaf((lo, hi), allowed2, false, t).map(|k| (k, t)))
+            });
+            let mut hit = on_last;
+            if hit.is_none() {
+                self.grid.any_near(lo - o.allowed, hi + o.allowed, |t| {
+                    hit = near.leaf((lo, hi), allowed2, reference, t).map(|k| (k, t));
+                    hit.is_some()
+                });
+            }
+            last = hit.map(|(_, t)| self.tri_piece[t as usize]).or(last);
+            hits.push(hit);
+        }
+        self.open_leaves = open;
+        hits
+    }
+
+    /// Settles the open leaves and the open pieces' base vertices in one
+    /// pass over the visible triangles ([`Sweep`]).
+    fn sweep_open(&mut self, meshes: &MeshView<'_>, reach: f32) -> Found {
+        let open = std::mem::take(&mut self.open_leaves);
+        let mut points = std::mem::take(&mut self.open_points);
+        points.clear();
+        let mut spans = Vec::with_capacity(open.len());
+        for o in &open {
+            let (lo, hi) = self.leaf_points(meshes, o.leaf as usize);
+            spans.push((points.len(), (lo, hi)));
+            points.extend_from_slice(&self.scratch);
+        }
+        let ends = spans.iter().skip(1).map(|s| s.0).chain([points.len()]);
+        let leaves: Vec<LeafQuestion<'_>> = spans
+            .iter()
+            .zip(ends)
+            .zip(&open)
+            .map(|(((start, bounds), end), o)| LeafQuestion {
+                points: &points[*start..end],
+                bounds: *bounds,
+                allowed: o.allowed,
+            })
+            .collect();
+        let vertices = self.base_vertices(meshes);
+        let triangles = Triangles {
+            tris: &self.tris,
+            boxes: &self.boxes,
+            piece: &self.tri_piece,
+            starts: &self.piece_starts,
+            by_piece: &self.piece_tris,
+            piece_boxes: &self.piece_boxes,
+        };
+        let questions = (&leaves[..], &vertices[..], self.open_pieces.len());
+        let found = self
+            .sweep
+            .run(self.frame_bounds, triangles, questions, reach);
+        drop(leaves);
+        self.open_points = points;
+        self.open_leaves = open;
+        found
+    }
+
+    /// The first visible vertices of each open piece (for a tube, its base
+    /// ring), as questions of the sweep.
+    fn base_vertices(&self, meshes: &MeshView<'_>) -> Vec<VertexQuestion> {
+        let mut questions = Vec::new();
+        for (rank, &piece) in self.open_pieces.iter().enumerate() {
+            let verts = self.piece_vert_starts[piece as usize] as usize
+                ..self.piece_vert_starts[piece as usize + 1] as usize;
+            let visible = self.piece_verts[verts]
+                .iter()
+                .filter(|&&v| self.vertex_visible[v as usize]);
+            questions.extend(visible.take(BASE_VERTICES).map(|&v| VertexQuestion {
+                rank: rank as u32,
+                piece,
+                vertex: v,
+                at: meshes.branch_positions[v as usize],
+            }));
+        }
+        questions
+    }
+
+    /// Keeps the proofs `hits` found for the open leaves, reports those
+    /// with none as floating, and measures their gaps.
+    fn settle_leaves(
+        &mut self,
+        meshes: &MeshView<'_>,
+        options: &PlausibilityOptions,
+        hits: Vec<Option<(u32, u32)>>,
+        reference: bool,
+        report: &mut Report,
+    ) {
+        for (o, hit) in self.open_leaves.iter().zip(hits) {
+            match hit {
+                Some((k, t)) if !reference => {
+                    self.leaf_proof[o.leaf as usize] = (k, self.tri_orig[t as usize]);
+                }
+                Some(_) => {}
+                None => report.floating.push(FloatingLeaf {
+                    leaf: o.leaf,
+                    gap: f32::NAN,
+                    allowed: o.allowed,
+                    size: o.size,
+                }),
             }
         }
         report.floating_leaves = report.floating.len() as u32;
@@ -784,15 +1084,16 @@ impl Plausibility {
         }
     }
 
-    fn check_pieces(
+    /// Pieces other than the root not settled by a shortcut, into
+    /// `open_pieces` (every one in the reference); counts the visible
+    /// pieces.
+    fn open_pieces(
         &mut self,
         meshes: &MeshView<'_>,
-        options: &PlausibilityOptions,
-        height: f32,
+        reach: f32,
         reference: bool,
         report: &mut Report,
     ) {
-        let reach = options.branch_reach * height;
         // The root piece holds the lowest vertex of a visible triangle.
         let mut root = None;
         let mut lowest = f32::INFINITY;
@@ -804,47 +1105,72 @@ impl Plausibility {
                 }
             }
         }
+        let mut open = std::mem::take(&mut self.open_pieces);
+        open.clear();
         for piece in 0..self.pieces {
-            let (start, end) = (
-                self.piece_starts[piece] as usize,
-                self.piece_starts[piece + 1] as usize,
-            );
-            if start == end {
+            if self.piece_starts[piece] == self.piece_starts[piece + 1] {
                 continue;
             }
             report.branch_pieces += 1;
-            if root == Some(piece as u32) {
-                continue;
+            if root != Some(piece as u32)
+                && (reference || !self.piece_settled(meshes, piece as u32, reach))
+            {
+                open.push(piece as u32);
             }
-            let near = if reference {
-                self.piece_near_exact(piece as u32, reach, false)
-            } else {
-                self.piece_near(meshes, piece as u32, reach)
+        }
+        self.open_pieces = open;
+    }
+
+    /// Keeps the proofs `hits` found for the open pieces, searches the
+    /// rest exhaustively and reports those near no other piece.
+    fn settle_pieces(
+        &mut self,
+        meshes: &MeshView<'_>,
+        hits: Vec<Option<(u32, u32)>>,
+        reach: f32,
+        reference: bool,
+        report: &mut Report,
+    ) {
+        let open = std::mem::take(&mut self.open_pieces);
+        for (&piece, hit) in open.iter().zip(hits) {
+            let near = match hit {
+                Some((v, t)) => {
+                    self.partner[piece as usize] = Partner::Vertex(v, self.tri_orig[t as usize]);
+                    true
+                }
+                None => {
+                    self.ensure_grid();
+                    if reference {
+                        self.piece_near_exact(piece, reach, false)
+                    } else {
+                        self.piece_near(meshes, piece, reach)
+                    }
+                }
             };
             if !near {
-                let (tris, list) = (&self.tris, &self.piece_tris[start..end]);
+                let list = self.piece_starts[piece as usize] as usize
+                    ..self.piece_starts[piece as usize + 1] as usize;
+                let (tris, list) = (&self.tris, &self.piece_tris[list]);
                 let first = list
                     .iter()
                     .flat_map(|&t| tris[t as usize])
                     .fold(Vec3::INFINITY, |a, v| if v.y < a.y { v } else { a });
                 report.floating_pieces.push(FloatingPiece {
-                    first_vertex: self.piece_first[piece],
+                    first_vertex: self.piece_first[piece as usize],
                     triangles: list.len() as u32,
                     lowest: first,
                 });
             }
         }
+        self.open_pieces = open;
         report.floating_branches = report.floating_pieces.len() as u32;
     }
 
-    /// Whether `piece` comes within `reach` of another piece: the exact
-    /// answer of [`Plausibility::piece_near_exact`], reached sooner by
-    /// sufficient tests first — last frame's proof, then a vertex of the
-    /// piece within reach of another piece's triangle (a vertex of a
-    /// visible triangle lies on the piece's surface, so the surfaces come
-    /// within that distance). Most child tubes start inside their parent:
-    /// their base ring settles it.
-    fn piece_near(&mut self, meshes: &MeshView<'_>, piece: u32, reach: f32) -> bool {
+    /// Whether `piece` comes within `reach` of another piece by a
+    /// shortcut: last frame's proof, else a vertex of the piece within
+    /// reach of a triangle of the piece that proof named (a child tube
+    /// stays on its parent while both move). Keeps a new proof.
+    fn piece_settled(&mut self, meshes: &MeshView<'_>, piece: u32, reach: f32) -> bool {
         let reach2 = reach * reach;
         let positions = meshes.branch_positions;
         let visible = |t: u32| match self.visible_of.get(t as usize) {
@@ -869,6 +1195,75 @@ impl Plausibility {
                 }
             }
         }
+        // The piece its proof named, else its neighbours' (strands are
+        // numbered so that siblings, which grow from one parent, are
+        // neighbours: a piece just grown, with no proof yet, mostly
+        // starts inside the piece its neighbour's proof names).
+        let hints = [
+            self.partner_piece(piece),
+            piece.checked_sub(1).and_then(|p| self.partner_piece(p)),
+            self.partner_piece(piece + 1),
+        ];
+        for (i, other) in hints.into_iter().enumerate() {
+            if let Some(other) = other
+                && other != piece
+                && !hints[..i].contains(&Some(other))
+                && let Some((v, t)) = self.base_near(positions, piece, other, reach2)
+            {
+                self.partner[piece as usize] = Partner::Vertex(v, self.tri_orig[t as usize]);
+                return true;
+            }
+        }
+        false
+    }
+
+    /// The piece the proof of `piece` names, if it has one.
+    fn partner_piece(&self, piece: u32) -> Option<u32> {
+        let t = match *self.partner.get(piece as usize)? {
+            Partner::None => return None,
+            Partner::Vertex(_, t) | Partner::Triangles(_, t) => t,
+        };
+        let &v = self.branch_key.get(3 * t as usize)?;
+        Some(self.piece_of[v as usize])
+    }
+
+    /// A base vertex of `piece` (one of its first visible ones) and a
+    /// visible triangle of `other` within `reach2` of it.
+    fn base_near(
+        &self,
+        positions: &[Vec3],
+        piece: u32,
+        other: u32,
+        reach2: f32,
+    ) -> Option<(u32, u32)> {
+        let verts = self.piece_vert_starts[piece as usize] as usize
+            ..self.piece_vert_starts[piece as usize + 1] as usize;
+        let tris = self.piece_starts[other as usize] as usize
+            ..self.piece_starts[other as usize + 1] as usize;
+        let base = self.piece_verts[verts]
+            .iter()
+            .filter(|&&v| self.vertex_visible[v as usize])
+            .take(BASE_VERTICES);
+        for &v in base {
+            let p = positions[v as usize];
+            let hit = self.piece_tris[tris.clone()].iter().find(|&&t| {
+                box_gap_sq((p, p), self.boxes[t as usize]) <= reach2
+                    && point_triangle_sq(p, self.tris[t as usize]) <= reach2
+            });
+            if let Some(&t) = hit {
+                return Some((v, t));
+            }
+        }
+        None
+    }
+
+    /// Whether `piece` comes within `reach` of another piece: the exact
+    /// answer of [`Plausibility::piece_near_exact`], reached sooner by a
+    /// sufficient test first — a vertex of the piece within reach of
+    /// another piece's triangle (a vertex of a visible triangle lies on
+    /// the piece's surface, so the surfaces come within that distance).
+    fn piece_near(&mut self, meshes: &MeshView<'_>, piece: u32, reach: f32) -> bool {
+        let positions = meshes.branch_positions;
         let verts = self.piece_vert_starts[piece as usize] as usize
             ..self.piece_vert_starts[piece as usize + 1] as usize;
         for k in verts {

@@ -1,0 +1,247 @@
+//! The default job without the service: a 60-frame morph of a 5,000-branch
+//! maple (seed 1) into a 5,000-branch conifer (seed 2), on trees whose
+//! analysis is cached, as a worker runs it (its stored part: the delta
+//! stream, `metrics.json` and the plan), and the per-frame measurements
+//! that make up most of its frames stage. `benches/job.sh` measures the
+//! same job through the service.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use treemorph_api::jobs::{JobRequest, MorphRequest};
+use treemorph_generate::Preset;
+use treemorph_gltf::frames::FrameMeshes;
+use treemorph_gltf::stream::StreamOptions;
+use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
+use treemorph_tree::Frame;
+use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions};
+
+use super::stages::tree;
+use super::{Row, measure, thousands};
+use crate::pipeline::{
+    FrameOutput, InputTree, JobInput, JobSink, JobSpec, Limits, PipelineRunner, Runner, SinkError,
+    StoredPlan, frame_instant,
+};
+
+/// Frames of the default job.
+const FRAMES: u32 = 60;
+
+/// Keeps what a worker would store: the files' size and the plan.
+#[derive(Default)]
+struct Kept {
+    bytes: usize,
+    plan: Option<Vec<u8>>,
+}
+
+impl JobSink for Kept {
+    fn stage(&mut self, _stage: &'static str, _progress: f32) {}
+
+    fn cancelled(&self) -> bool {
+        false
+    }
+
+    fn stream_header(&mut self, _bytes: Vec<u8>) -> Result<(), SinkError> {
+        Ok(())
+    }
+
+    fn frame(&mut self, _frame: FrameOutput) -> Result<(), SinkError> {
+        Ok(())
+    }
+
+    fn file(&mut self, _name: &str, bytes: Vec<u8>) -> Result<(), SinkError> {
+        self.bytes += bytes.len();
+        Ok(())
+    }
+
+    fn keeps_plan(&self) -> bool {
+        true
+    }
+
+    fn plan(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
+        self.plan = Some(bytes);
+        Ok(())
+    }
+}
+
+/// The default job's trees (analysed) and spec.
+fn default_job() -> (HashMap<String, Arc<InputTree>>, JobSpec) {
+    let analysed = |preset, seed| {
+        let input = InputTree::new(tree(preset, seed, 5_000));
+        input.analysis().expect("a generated tree analyses");
+        Arc::new(input)
+    };
+    let trees = HashMap::from([
+        ("a".to_owned(), analysed(Preset::Maple, 1)),
+        ("b".to_owned(), analysed(Preset::Conifer, 2)),
+    ]);
+    let request = JobRequest::Morph(MorphRequest {
+        source: "a".into(),
+        target: "b".into(),
+        frames: FRAMES,
+        options: Default::default(),
+        outputs: Default::default(),
+        callback_url: None,
+    });
+    let spec = JobSpec::parse(&request, &Limits::default()).expect("a valid job");
+    (trees, spec)
+}
+
+/// Rows: the worker's run, an instant from the stored plan, and the
+/// per-frame measurements.
+pub(super) fn job_rows(quick: bool, rows: &mut Vec<Row>) {
+    let (trees, spec) = default_job();
+    let stored = spec.stored_part();
+    let input = "maple → conifer".to_owned();
+    let size = "5,000/5,000 branches, 60 frames".to_owned();
+    let mut kept = Kept::default();
+    let timing = measure(quick, || {
+        kept = Kept::default();
+        let job = JobInput {
+            spec: &stored,
+            trees: &trees,
+            stored_plan: None,
+        };
+        PipelineRunner::default()
+            .run(&job, &mut kept)
+            .expect("the default job runs");
+    });
+    let plan = kept.plan.take().expect("the run published its plan");
+    rows.push(Row {
+        stage: "default job".into(),
+        input: input.clone(),
+        size: size.clone(),
+        median_ms: timing.0,
+        min_ms: timing.1,
+        runs: timing.2,
+        throughput: format!("{:.0} frames/s", f64::from(FRAMES) * 1e3 / timing.0),
+        target_ms: Some(500.0),
+        note: format!(
+            "plan, stream and metrics.json as a worker runs it; {:.1} MB stream and metrics, {:.1} MB plan",
+            kept.bytes as f64 / 1e6,
+            plan.len() as f64 / 1e6
+        ),
+    });
+    let load = || Some(plan.clone());
+    let timing = measure(quick, || {
+        let job = JobInput {
+            spec: &spec,
+            trees: &HashMap::new(),
+            stored_plan: Some(StoredPlan {
+                key: "job",
+                load: &load,
+            }),
+        };
+        let glb = PipelineRunner::default()
+            .frame_at(&job, 0.375)
+            .expect("an instant");
+        std::hint::black_box(glb);
+    });
+    rows.push(Row {
+        stage: "frame at an instant, stored plan".into(),
+        input: input.clone(),
+        size: size.clone(),
+        median_ms: timing.0,
+        min_ms: timing.1,
+        runs: timing.2,
+        throughput: String::new(),
+        target_ms: Some(50.0),
+        note: "a process that did not run the job: plan read, one GLB (frame.glb?t=)".into(),
+    });
+}
+
+/// The output check, the crossings and the construction metrics per frame,
+/// each over the default job's whole sequence in order (as a job measures
+/// it: the check keeps what proved each leaf and piece attached from one
+/// frame to the next).
+pub(super) fn measurement_rows(quick: bool, rows: &mut Vec<Row>) {
+    let (trees, _) = default_job();
+    let (input, size) = ("maple → conifer", "5,000/5,000 branches, 60 frames");
+    let (a, b) = (&trees["a"], &trees["b"]);
+    let options = crate::pipeline::morph_options(&Default::default());
+    let plan = MorphPlan::new(
+        a.tree(),
+        a.analysis().expect("analysed"),
+        b.tree(),
+        b.analysis().expect("analysed"),
+        &options,
+    )
+    .expect("plan");
+    let mut morpher = Morpher::new(&plan);
+    let frames: Vec<Frame> = (0..FRAMES)
+        .map(|i| {
+            let mut frame = Frame::default();
+            morpher.morph(frame_instant(i, FRAMES), &mut frame);
+            frame
+        })
+        .collect();
+    let radii = treemorph_gltf::frames::max_radii(&frames);
+    let mut meshes =
+        FrameMeshes::new(plan.topology(), &radii, &StreamOptions::default().mesh).expect("meshes");
+    let written: Vec<_> = frames
+        .iter()
+        .map(|f| {
+            let (branches, leaves) = meshes.mesh(f).expect("meshes");
+            (branches.clone(), leaves.clone(), meshes.leaves().shape())
+        })
+        .collect();
+    let per_frame = |(median, min, runs): (f64, f64, usize)| {
+        let n = f64::from(FRAMES);
+        (median / n, min / n, runs)
+    };
+    let row = |stage: &str, timing: (f64, f64, usize), note: String| Row {
+        stage: stage.into(),
+        input: input.to_owned(),
+        size: size.to_owned(),
+        median_ms: timing.0,
+        min_ms: timing.1,
+        runs: timing.2,
+        throughput: String::new(),
+        target_ms: None,
+        note,
+    };
+    let check = per_frame(measure(quick, || {
+        let mut check = Plausibility::new();
+        for (branches, leaves, shape) in &written {
+            let view = MeshView::of_buffers(branches, leaves, *shape);
+            std::hint::black_box(check.check(&view, &PlausibilityOptions::default()))
+                .expect("a frame checks");
+        }
+    }));
+    let crossings = per_frame(measure(quick, || {
+        let mut meter = CrossingMeter::new();
+        for frame in &frames {
+            meter.push(&plan.topology().strands, frame);
+        }
+        std::hint::black_box(meter.crossings());
+    }));
+    let metrics = per_frame(measure(quick, || {
+        let mut meter = FrameMeter::new(&plan, &MetricsOptions::default());
+        for frame in &frames {
+            std::hint::black_box(meter.measure(frame)).expect("a frame of the plan");
+        }
+    }));
+    let triangles: usize = written.iter().map(|w| w.0.indices.len() / 3).sum();
+    rows.extend([
+        row(
+            "output check per frame",
+            check,
+            format!(
+                "floating leaves and pieces on the written meshes; {} branch triangles a frame",
+                thousands(triangles / FRAMES as usize)
+            ),
+        ),
+        row(
+            "crossings per frame",
+            crossings,
+            format!(
+                "{} strands' capsules",
+                thousands(plan.topology().strands.len())
+            ),
+        ),
+        row(
+            "frame metrics per frame",
+            metrics,
+            "constructed floating parts, MTSW, jumps, growth order, leaf copies".into(),
+        ),
+    ]);
+}

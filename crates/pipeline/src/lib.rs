@@ -335,7 +335,9 @@ pub enum StreamPart {
 ///   their `metrics.json` has `max_jump` and `jump_ratio`.
 /// - 5: a morph's group matching swaps partners to uncross sibling limbs
 ///   (`group_weights.crossing`).
-pub const RENDER_VERSION: u32 = 5;
+/// - 6: a sketch's foliage fit balances its crown against the outline;
+///   plans are stored (`plan.bin`).
+pub const RENDER_VERSION: u32 = 6;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

@@ -64,6 +64,8 @@ pub(crate) struct Arcs {
     scale: Vec<Option<f32>>,
     /// Per node: the chain whose clock moves it (`u32::MAX`: the root).
     node_chain: Vec<u32>,
+    /// The chains, each after its parent.
+    chain_order: Vec<u32>,
     /// Per chain: the scale of its radii at the end.
     thicken: Vec<f32>,
     /// Scratch: per chain, its clock; per node, its rotation (rest
@@ -77,42 +79,55 @@ pub(crate) struct Arcs {
 const TINY: f32 = 1e-7;
 
 impl Arcs {
-    /// The turns from `plan`'s rest pose to the solved `end` pose.
-    pub(crate) fn new(plan: &SketchPlan, end: Vec<Vec3>) -> Arcs {
+    /// The per-plan tables of `plan`'s turns, aimed at no end pose yet
+    /// ([`Arcs::aim`]).
+    pub(crate) fn of(plan: &SketchPlan) -> Arcs {
+        Arcs {
+            node_chain: node_chains(plan),
+            chain_order: parents_first(&plan.chain_parent),
+            ..Arcs::default()
+        }
+    }
+
+    /// The turns from `plan`'s rest pose to the solved `end` pose (aimed
+    /// again, the tables and buffers are kept: the foliage fit tries
+    /// several end poses).
+    pub(crate) fn aim(&mut self, plan: &SketchPlan, end: Vec<Vec3>) {
         let rest = &plan.rest.positions;
         let n = rest.len();
-        let mut arcs = Arcs {
-            rest_offset: vec![Vec3::ZERO; n],
-            end_offset: vec![Vec3::ZERO; n],
-            turn: vec![Quat::IDENTITY; n],
-            scale: vec![Some(1.0); n],
-            node_chain: node_chains(plan),
-            world: vec![Quat::IDENTITY; n],
-            ..Arcs::default()
-        };
+        for v in [&mut self.rest_offset, &mut self.end_offset] {
+            v.clear();
+            v.resize(n, Vec3::ZERO);
+        }
+        self.turn.clear();
+        self.turn.resize(n, Quat::IDENTITY);
+        self.scale.clear();
+        self.scale.resize(n, Some(1.0));
+        self.world.clear();
+        self.world.resize(n, Quat::IDENTITY);
         let tiny = TINY * plan.height.max(f32::MIN_POSITIVE);
         for (i, parent) in plan.topology.parents.iter().enumerate() {
             let Some(p) = parent.map(|p| p as usize) else {
                 continue;
             };
             let (a, b) = (rest[i] - rest[p], end[i] - end[p]);
-            arcs.rest_offset[i] = a;
-            arcs.end_offset[i] = b;
+            self.rest_offset[i] = a;
+            self.end_offset[i] = b;
             let len = a.length();
             if len <= tiny {
-                arcs.scale[i] = None;
+                self.scale[i] = None;
                 continue;
             }
-            arcs.scale[i] = Some(b.length() / len);
-            arcs.turn[i] = match b.try_normalize() {
+            self.scale[i] = Some(b.length() / len);
+            self.turn[i] = match b.try_normalize() {
                 Some(b) => Quat::from_rotation_arc(a / len, b),
                 None => Quat::IDENTITY,
             };
         }
-        arcs.thicken = thickening(plan, &end, &arcs.node_chain);
-        arcs.clock = vec![0.0; arcs.thicken.len()];
-        arcs.end = end;
-        arcs
+        self.thicken = thickening(plan, &end, &self.node_chain, &self.chain_order);
+        self.clock.clear();
+        self.clock.resize(self.thicken.len(), 0.0);
+        self.end = end;
     }
 
     /// Writes the nodes and radii at `t` (`t > 0`) into `positions` and
@@ -177,12 +192,12 @@ fn node_chains(plan: &SketchPlan) -> Vec<u32> {
 
 /// Per chain: its arc length at the end over at rest, capped so that its
 /// base ends no thicker than its parent at its junction (unless it scales
-/// no more than its parent). Parents first, so each cap sees its parent's
-/// final radius. `chains`: each node's chain ([`node_chains`]).
-fn thickening(plan: &SketchPlan, end: &[Vec3], chains: &[u32]) -> Vec<f32> {
+/// no more than its parent). Parents first (`order`), so each cap sees its
+/// parent's final radius. `chains`: each node's chain ([`node_chains`]).
+fn thickening(plan: &SketchPlan, end: &[Vec3], chains: &[u32], order: &[u32]) -> Vec<f32> {
     let rest = &plan.rest;
     let mut k = vec![1.0f32; plan.chain_ranges.len()];
-    for c in parents_first(&plan.chain_parent) {
+    for &c in order {
         let c = c as usize;
         let (a, b) = plan.chain_ranges[c];
         let nodes = &plan.chain_nodes[a as usize..b as usize];

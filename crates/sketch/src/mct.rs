@@ -453,6 +453,31 @@ impl Mct {
         }
     }
 
+    /// How the cage-field displacement of node `n` (which must have a
+    /// control cage) depends on the crown cage's: `out[j]` is the weight of
+    /// crown vertex `j`'s displacement in it. A cage's corners follow their
+    /// parent's by fixed mean value coordinates, so the node's coordinates
+    /// in its control cage, composed up the cage tree, are the crown's
+    /// weights; the self-adaptive corrections add constants.
+    pub(crate) fn crown_weights(&self, n: usize, out: &mut Vec<f32>) {
+        let mut c = self.control[n] as usize;
+        out.clear();
+        out.extend_from_slice(&self.weights[self.offsets[n]..self.offsets[n + 1]]);
+        let mut next = Vec::new();
+        while let Some(p) = self.cages[c].parent {
+            let m = self.cages[p as usize].rest.len();
+            next.clear();
+            next.resize(m, 0.0);
+            for (&v, row) in out.iter().zip(self.cages[c].weights.chunks_exact(m)) {
+                for (o, &w) in next.iter_mut().zip(row) {
+                    *o += v * w;
+                }
+            }
+            std::mem::swap(out, &mut next);
+            c = p as usize;
+        }
+    }
+
     /// The cage-field displacement of node `n` (which must have a
     /// control cage) given cage displacements.
     pub(crate) fn node_displacement(&self, n: usize, cage_disp: &[Vec2]) -> Vec2 {
@@ -467,6 +492,34 @@ mod tests {
     use super::*;
     use crate::view::View;
     use glam::Vec3;
+
+    /// A node's cage target moves with the crown cage exactly as its
+    /// crown weights say (the self-adaptive corrections are constants).
+    #[test]
+    fn crown_weights_are_how_targets_follow_the_crown() {
+        let plan = crate::plan::tests::heart_plan(crate::SketchOptions::default());
+        let mct = &plan.mct;
+        let base = plan.crown_delta.clone();
+        let nudge: Vec<Vec2> = (0..base.len())
+            .map(|j| Vec2::new((j as f32).sin(), (j as f32 * 0.7).cos()) * 0.01)
+            .collect();
+        let moved: Vec<Vec2> = base.iter().zip(&nudge).map(|(&b, &e)| b + e).collect();
+        let (mut at_base, mut at_moved, mut weights) = (Vec::new(), Vec::new(), Vec::new());
+        mct.displacements(&base, 1.0, &mut at_base);
+        mct.displacements(&moved, 1.0, &mut at_moved);
+        let mut checked = 0;
+        for n in (0..mct.control.len()).filter(|&n| mct.control[n] != NONE) {
+            mct.crown_weights(n, &mut weights);
+            let predicted = mvc::apply(&weights, &nudge);
+            let seen = mct.node_displacement(n, &at_moved) - mct.node_displacement(n, &at_base);
+            assert!(
+                seen.distance(predicted) < 1e-5,
+                "node {n}: {seen} vs {predicted}"
+            );
+            checked += 1;
+        }
+        assert!(checked > 100, "{checked} caged nodes");
+    }
 
     /// Regression: an inflated lobe's corners project a hair apart; the
     /// silhouette merges them.

@@ -122,6 +122,20 @@ pub struct ShapeMetrics {
     pub spill: f32,
 }
 
+/// What the foliage fit measures of a trial pose
+/// ([`SketchMetrics::fit_measure`]).
+pub(crate) struct FitMeasure {
+    /// IoU of the foliage outline with the reference crown.
+    pub iou: f32,
+    /// The outer boundary of every piece of the outline (NDC,
+    /// counter-clockwise), when asked.
+    pub outlines: Vec<Vec<Vec2>>,
+    /// Per reference sample: the reference's area the outline misses minus
+    /// the outline's area outside the reference, over the pixels nearest
+    /// the sample (NDC²).
+    pub balance: Vec<f32>,
+}
+
 /// Reusable metrics context for one plan (keeps its rasters).
 pub struct SketchMetrics<'p> {
     plan: &'p SketchPlan,
@@ -138,7 +152,13 @@ pub struct SketchMetrics<'p> {
 impl<'p> SketchMetrics<'p> {
     /// A metrics context for `plan`.
     pub fn new(plan: &'p SketchPlan) -> SketchMetrics<'p> {
-        let size = plan.options.raster_size as usize;
+        SketchMetrics::with_raster(plan, plan.options.raster_size)
+    }
+
+    /// A metrics context for `plan` on a `size`² raster (the foliage fit
+    /// measures its trial poses on a coarser one).
+    pub(crate) fn with_raster(plan: &'p SketchPlan, size: u32) -> SketchMetrics<'p> {
+        let size = size as usize;
         SketchMetrics {
             plan,
             size,
@@ -291,16 +311,55 @@ impl<'p> SketchMetrics<'p> {
         self.trace(lo, px)
     }
 
-    /// The IoU of a frame's foliage outline with the reference crown at
-    /// `frame.t`, and the outer boundary of every piece of the outline (NDC,
-    /// counter-clockwise): [`SketchMetrics::outline`] keeps only the
-    /// largest, the foliage fit needs all of them. One rasterisation, no
-    /// Fréchet distance.
-    pub(crate) fn iou_and_outlines(&mut self, frame: &Frame) -> (f32, Vec<Vec<Vec2>>) {
+    /// What the foliage fit measures of a frame against the reference
+    /// crown at `frame.t` (`samples`: points along the reference), in one
+    /// rasterisation: the IoU, the outer boundary of every piece of the
+    /// outline when `outlines` is asked ([`SketchMetrics::outline`] keeps
+    /// only the largest), and the area balance along the reference.
+    pub(crate) fn fit_measure(
+        &mut self,
+        frame: &Frame,
+        samples: &[Vec2],
+        outlines: bool,
+    ) -> FitMeasure {
         let reference = self.plan.reference_crown(frame.t);
         let (lo, px) = self.rasterise(frame, &reference);
         let (_, iou) = self.overlap();
-        (iou, self.trace_all(lo, px))
+        FitMeasure {
+            iou,
+            balance: self.balance(lo, px, samples),
+            outlines: if outlines {
+                self.trace_all(lo, px)
+            } else {
+                Vec::new()
+            },
+        }
+    }
+
+    /// Per sample, over the pixels nearer to it than to any other sample:
+    /// the reference's area the outline misses minus the outline's area
+    /// outside the reference (NDC²).
+    fn balance(&self, lo: Vec2, px: f32, samples: &[Vec2]) -> Vec<f32> {
+        let g = self.size;
+        let mut net = vec![0.0f32; samples.len()];
+        if samples.is_empty() {
+            return net;
+        }
+        let area = px * px;
+        for (i, (&m, &r)) in self.mask.iter().zip(&self.reference).enumerate() {
+            if m == r {
+                continue;
+            }
+            let p = lo + Vec2::new((i % g) as f32 + 0.5, (i / g) as f32 + 0.5) * px;
+            let nearest = samples
+                .iter()
+                .map(|s| s.distance_squared(p))
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map_or(0, |(k, _)| k);
+            net[nearest] += if r { area } else { -area };
+        }
+        net
     }
 
     /// Pixels in both the outline and the reference, and their IoU (1 when
@@ -404,8 +463,17 @@ impl<'p> SketchMetrics<'p> {
         self.mask.fill(false);
         for q in &quads {
             let q = q.map(to_px);
-            fill_triangle(&mut self.mask, g, q[0], q[1], q[2]);
-            fill_triangle(&mut self.mask, g, q[0], q[2], q[3]);
+            // A blade between two rows or columns of pixel centres covers
+            // none (the common case on the foliage fit's coarse raster).
+            let (qlo, qhi) = (
+                q[0].min(q[1]).min(q[2]).min(q[3]),
+                q[0].max(q[1]).max(q[2]).max(q[3]),
+            );
+            let centres = (qlo - 0.5).ceil().cmple((qhi - 0.5).floor());
+            if centres.all() {
+                fill_triangle(&mut self.mask, g, q[0], q[1], q[2]);
+                fill_triangle(&mut self.mask, g, q[0], q[2], q[3]);
+            }
             // Blades smaller than a pixel still count.
             let c = (q[0] + q[1] + q[2] + q[3]) * 0.25;
             if c.x >= 0.0 && c.y >= 0.0 && (c.x as usize) < g && (c.y as usize) < g {
@@ -887,6 +955,39 @@ mod tests {
                 .fold(f32::INFINITY, f32::min);
             assert_eq!(got, brute, "at {q}");
         }
+    }
+
+    /// A crown outline shifted left of the reference misses the
+    /// reference on its right and spills over on its left: the balance
+    /// is positive at the right-hand sample, negative at the left-hand one,
+    /// and they cancel.
+    #[test]
+    fn the_balance_shows_where_the_outline_falls_short() {
+        let plan = crate::plan::tests::heart_plan(crate::SketchOptions::default());
+        let g = 20;
+        let mut metrics = SketchMetrics::with_raster(&plan, g as u32);
+        let square = |x0: f32| {
+            [
+                Vec2::new(x0, 4.0),
+                Vec2::new(x0 + 12.0, 4.0),
+                Vec2::new(x0 + 12.0, 16.0),
+                Vec2::new(x0, 16.0),
+            ]
+        };
+        fill_polygon(&mut metrics.reference, g, &square(4.0));
+        fill_polygon(&mut metrics.mask, g, &square(2.0));
+        let samples = [
+            Vec2::new(16.0, 10.0),
+            Vec2::new(10.0, 16.0),
+            Vec2::new(4.0, 10.0),
+            Vec2::new(10.0, 4.0),
+        ];
+        let net = metrics.balance(Vec2::ZERO, 1.0, &samples);
+        // 24 pixels each way; the corner pixels are as near the top and
+        // bottom samples.
+        assert_eq!(net.iter().sum::<f32>(), 0.0, "{net:?}");
+        assert_eq!(net[2], -24.0, "{net:?}");
+        assert!(net[0] >= 22.0 && net[1] <= 1.0 && net[3] <= 1.0, "{net:?}");
     }
 
     #[test]

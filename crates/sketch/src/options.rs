@@ -57,7 +57,8 @@ pub struct SketchOptions {
     /// Foliage-fit passes (see the `foliage` module docs): after planning,
     /// the t = 1 foliage outline is measured and the crown cage corrected
     /// so that the outline, rather than the crown's convex silhouette,
-    /// lands on the sketch (default 3; 0: the paper's crown mapping alone;
+    /// lands on the sketch; each pass is one more correction and one more
+    /// measured t = 1 frame (default 3; 0: the paper's crown mapping alone;
     /// at most 8; multiscale closed sketches only).
     pub foliage_passes: u32,
     /// Pruning threshold on the area ratio r = area(cage ∩ sketch) /

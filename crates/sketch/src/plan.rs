@@ -191,14 +191,18 @@ impl SketchPlan {
             lobes,
             pace: None,
         };
+        let staged = options.schedule.kind == ScheduleKind::Staged;
         if options.method == Method::Multiscale && sketch.closed && options.foliage_passes > 0 {
-            foliage::fit(&mut plan, options.foliage_passes)?;
-        }
-        if options.schedule.kind == ScheduleKind::Staged {
-            let mut sketcher = Sketcher::new(&plan);
-            plan.pace = Pace::measure(PACE_SAMPLES, options.schedule.easing, |t, frame| {
-                sketcher.place_branches(t, frame);
-            });
+            // The fit's sketcher ends solved for the fitted crown: the
+            // pacing measures on it rather than solving it again.
+            let (delta, pace) = {
+                let (delta, mut sketcher) = foliage::fit(&plan, options.foliage_passes)?;
+                (delta, staged.then(|| pace(&mut sketcher)).flatten())
+            };
+            plan.crown_delta = delta;
+            plan.pace = pace;
+        } else if staged {
+            plan.pace = pace(&mut Sketcher::new(&plan));
         }
         Ok(plan)
     }
@@ -279,6 +283,15 @@ impl SketchPlan {
     pub fn wilting_nodes(&self) -> &[bool] {
         &self.node_wilts
     }
+}
+
+/// How a staged sketch's `t` is paced, measured on a `sketcher` of its
+/// plan made before the plan had a pace.
+fn pace(sketcher: &mut Sketcher) -> Option<Pace> {
+    let easing = sketcher.plan().options.schedule.easing;
+    Pace::measure(PACE_SAMPLES, easing, |t, frame| {
+        sketcher.place_branches(t, frame);
+    })
 }
 
 /// The options, the view's camera and the sketch's points, checked in
@@ -650,4 +663,34 @@ fn chain_levels(
         });
     }
     Ok(levels)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use treemorph_analysis::AnalysisOptions;
+    use treemorph_generate::{GenerateOptions, Preset, generate};
+
+    use super::*;
+    use crate::sketch::parse_sketch_file;
+
+    /// A small maple planned into the heart example (fitted to its crown)
+    /// with `options` otherwise.
+    pub(crate) fn heart_plan(options: SketchOptions) -> SketchPlan {
+        let tree = generate(&GenerateOptions::new(Preset::Maple, 1).with_size(1_500)).unwrap();
+        let analysis = Analysis::of(&tree, &AnalysisOptions::default()).unwrap();
+        let file =
+            parse_sketch_file(include_bytes!("../../../examples/sketches/heart.json")).unwrap();
+        let options = options.with_fit(file.fit);
+        SketchPlan::new(&tree, &analysis, &file.view, &file.sketch, &options).unwrap()
+    }
+
+    /// The staged schedule is paced on the foliage fit's own sketcher: the
+    /// pace is the one a sketcher made afresh for the fitted plan measures.
+    #[test]
+    fn the_pace_is_measured_on_the_fitted_crown() {
+        let mut plan = heart_plan(SketchOptions::default());
+        let kept = plan.pace.take();
+        assert!(kept.is_some());
+        assert_eq!(kept, pace(&mut Sketcher::new(&plan)));
+    }
 }

@@ -46,15 +46,22 @@ impl<'p> Sketcher<'p> {
             b: Vec::new(),
             x: Mat::zeros(0, 0),
             mem: scratch_for(plan.levels.iter().map(|l| &l.ls)),
-            arcs: Arcs::default(),
+            arcs: Arcs::of(plan),
             clocks: Clocks::new(plan, &plan.options.schedule),
             lobes: Default::default(),
             rigid: Rigid::new(plan),
             depth: DepthScale::new(plan),
         };
-        let end = sketcher.solve();
-        sketcher.arcs = Arcs::new(plan, end);
+        sketcher.resolve(&plan.crown_delta);
         sketcher
+    }
+
+    /// Solves the end pose again for the crown cage moving by
+    /// `crown_delta` at t = 1, keeping the per-plan tables: the foliage
+    /// fit tries several crown displacements on one sketcher.
+    pub(crate) fn resolve(&mut self, crown_delta: &[Vec2]) {
+        let end = self.solve(crown_delta);
+        self.arcs.aim(self.plan, end);
     }
 
     /// The plan.
@@ -107,7 +114,8 @@ impl<'p> Sketcher<'p> {
 
     /// The end pose, as the paper makes a frame (Step 1–3):
     ///
-    /// 1. The crown cage moves along the correspondence to `S1`; every
+    /// 1. The crown cage moves by `crown_delta` (along the correspondence
+    ///    to `S1`, plus the foliage fit's correction); every
     ///    other cage follows its parent by mean value coordinates, plus
     ///    its self-adaptive correction.
     /// 2. Each chain's tip target is its control cage's mean value
@@ -118,10 +126,10 @@ impl<'p> Sketcher<'p> {
     /// 3. Nodes go where the solve put them on screen, their depth scaled
     ///    with the crown's width (`depth` module); every chain is then
     ///    re-solved to keep its segment lengths (`rigid` module).
-    fn solve(&mut self) -> Vec<Vec3> {
+    fn solve(&mut self, crown_delta: &[Vec2]) -> Vec<Vec3> {
         let plan = self.plan;
         plan.mct
-            .displacements(&plan.crown_delta, 1.0, &mut self.cage_disp);
+            .displacements(crown_delta, 1.0, &mut self.cage_disp);
         for (n, &c) in plan.mct.control.iter().enumerate() {
             if c != NONE {
                 self.target_disp[n] = plan.mct.node_displacement(n, &self.cage_disp);

@@ -738,7 +738,11 @@ fn grid_error_bound_holds_for_points_inside_the_bounds() {
                 for f in points {
                     let p = [0, 1, 2].map(|a| min[a] + f[a] * size[a]);
                     let q = grid.quantise(p).expect("inside the bounds");
-                    prop_assert!(distance(grid.dequantise(q), p) <= 0.001 * height);
+                    // Far from the origin a flat box's bound is finer than
+                    // f32 itself: allow the reconstruction's own rounding.
+                    let magnitude = p.iter().fold(0f32, |m, c| m.max(c.abs()));
+                    let rounding = 4.0 * f64::from(f32::EPSILON * magnitude);
+                    prop_assert!(distance(grid.dequantise(q), p) <= 0.001 * height + rounding);
                 }
                 Ok(())
             },

@@ -366,6 +366,15 @@ pub struct MorphJobOptions {
     /// `keyframes` (one target per keyframe, the format before `basis`).
     #[arg(long, value_enum, default_value_t)]
     pub animation: AnimationKind,
+    /// Most joints of a `skinned` animation besides its root (default
+    /// 256, what game engines play vegetation with; 0: one joint per
+    /// chain). Lighter chains merge into their parents first.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::int::opt_u32"
+    )]
+    #[arg(long)]
+    pub skeleton_joints: Option<u32>,
     /// When each operation happens: `staged` (default; first shed, then
     /// reshape, then grow, parents before their twigs, growth from the
     /// tip) or `linear` (every operation on one clock over the whole
@@ -514,6 +523,14 @@ pub enum AnimationKind {
     /// One morph target per keyframe (`keyframes`, default 24): the
     /// file's size grows with the keyframe count.
     Keyframes,
+    /// A skeleton that follows the branch hierarchy (at most
+    /// `skeleton_joints` joints), with per-joint translation, rotation
+    /// and scale at every sampled frame; bark and leaves are bound to
+    /// their chain's joint. What the joints cannot express stays as the
+    /// fewest morph targets (at most 4) that keep every vertex within
+    /// 1 % of the tree's height (`metrics.json` reports the error reached); leaves and bark dissolve as in `basis`.
+    /// For game engines.
+    Skinned,
 }
 
 /// How `animation.glb` stores its morph targets.
@@ -575,6 +592,15 @@ pub struct SketchJobOptions {
     /// `keyframes` (see the morph options).
     #[arg(long, value_enum, default_value_t)]
     pub animation: AnimationKind,
+    /// Most joints of a `skinned` animation besides its root (default
+    /// 256, what game engines play vegetation with; 0: one joint per
+    /// chain). Lighter chains merge into their parents first.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::int::opt_u32"
+    )]
+    #[arg(long)]
+    pub skeleton_joints: Option<u32>,
     /// When each branch moves: `staged` (default; pruned branches wilt
     /// first, then every branch turns toward its sketched pose, parents
     /// before their twigs, each eased) or `linear` (every branch on one

@@ -7,8 +7,8 @@
 // three.js's MeshoptDecoder), plays its first animation with an
 // AnimationMixer, seeks it to each sample time and computes the sampled
 // vertices' world positions on the CPU from the geometry, its morph
-// attributes, the mesh's current morphTargetInfluences and its world
-// matrix — exactly what the vertex shader does. EXPECTED.json (written by
+// attributes, the mesh's current morphTargetInfluences, its joints (a
+// skinned mesh) and its world matrix — exactly what the vertex shader does. EXPECTED.json (written by
 // the treemorph-gltf crate's ignored `threejs` test) gives, per mesh
 // (node name), the vertex count, the morph target count and the expected
 // positions at a few times:
@@ -105,6 +105,9 @@ window.check = async (url, expected) => {
             else v.addScaledVector(d.sub(new THREE.Vector3().fromBufferAttribute(position, index)), w);
           }
         });
+        // A skinned mesh: its joints carry the morphed bind position
+        // (three.js's own CPU skinning, as its shader does it).
+        if (mesh.isSkinnedMesh) mesh.applyBoneTransform(index, v);
         v.applyMatrix4(mesh.matrixWorld);
         const [x, y, z] = sample.positions[k];
         const e = Math.hypot(v.x - x, v.y - y, v.z - z);

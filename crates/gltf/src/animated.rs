@@ -90,7 +90,8 @@ use crate::doc::{Data, Doc, MAX_U16_VERTICES, Wrap, asset};
 use crate::frame_glb::material_json;
 use crate::frames::{EncodeError, FrameMeshes, Looks, check_frame};
 use crate::gl::{
-    ARRAY_BUFFER, BYTE, ELEMENT_ARRAY_BUFFER, FLOAT, SHORT, TRIANGLES, UNSIGNED_INT, UNSIGNED_SHORT,
+    ARRAY_BUFFER, BYTE, ELEMENT_ARRAY_BUFFER, FLOAT, SHORT, TRIANGLES, UNSIGNED_BYTE, UNSIGNED_INT,
+    UNSIGNED_SHORT,
 };
 use crate::mesh::{LeafShape, MeshBuffers, MeshOptions};
 
@@ -131,7 +132,14 @@ pub struct AnimatedOptions {
     /// vertex, so the animated file uses lighter meshes than a per-frame
     /// GLB).
     pub mesh: MeshOptions,
+    /// Most joints of a skinned animation besides its still root (default
+    /// [`DEFAULT_SKELETON_JOINTS`], for game engines; 0: one per chain).
+    pub skeleton_joints: usize,
 }
+
+/// The joint cap of a skinned animation unless asked otherwise: a few
+/// hundred bones is what engines play vegetation with.
+pub const DEFAULT_SKELETON_JOINTS: usize = 256;
 
 impl Default for AnimatedOptions {
     fn default() -> AnimatedOptions {
@@ -143,11 +151,19 @@ impl Default for AnimatedOptions {
             duration: 4.0,
             encoding: AnimatedEncoding::Float,
             mesh,
+            skeleton_joints: DEFAULT_SKELETON_JOINTS,
         }
     }
 }
 
 impl AnimatedOptions {
+    /// These options with [`AnimatedOptions::skeleton_joints`] set.
+    #[must_use]
+    pub fn with_skeleton_joints(mut self, joints: usize) -> AnimatedOptions {
+        self.skeleton_joints = joints;
+        self
+    }
+
     /// These options with [`AnimatedOptions::keyframes`] set.
     #[must_use]
     pub fn with_keyframes(mut self, keyframes: usize) -> AnimatedOptions {
@@ -1144,6 +1160,10 @@ pub(crate) fn compress<const N: usize>(bytes: &[u8]) -> Vec<u8> {
 /// What an attribute view holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Attr {
+    /// `u16` VEC4 joint indices.
+    Joints4U16,
+    /// Normalised `u8` VEC4 joint weights.
+    Weights4U8,
     Vec3F32,
     Vec2F32,
     /// Normalised `i16` VEC3 padded to 8 bytes.
@@ -1158,8 +1178,8 @@ impl Attr {
     fn stride(self) -> usize {
         match self {
             Attr::Vec3F32 => 12,
-            Attr::Vec2F32 | Attr::Vec3I16 => 8,
-            Attr::Vec3I8 | Attr::Vec2U16 => 4,
+            Attr::Vec2F32 | Attr::Vec3I16 | Attr::Joints4U16 => 8,
+            Attr::Vec3I8 | Attr::Vec2U16 | Attr::Weights4U8 => 4,
         }
     }
 }
@@ -1183,6 +1203,8 @@ pub(crate) fn accessor_json(
         Attr::Vec3I16 => (SHORT, "VEC3", true),
         Attr::Vec3I8 => (BYTE, "VEC3", true),
         Attr::Vec2U16 => (UNSIGNED_SHORT, "VEC2", true),
+        Attr::Joints4U16 => (UNSIGNED_SHORT, "VEC4", false),
+        Attr::Weights4U8 => (UNSIGNED_BYTE, "VEC4", true),
     };
     let mut a =
         json!({ "bufferView": view, "componentType": component, "count": count, "type": ty });

@@ -69,6 +69,10 @@
 
 mod appearance;
 mod motion;
+mod skin;
+mod skinning;
+
+pub use skinning::SKIN_ERROR_BUDGET;
 
 use std::io::Write;
 
@@ -94,6 +98,12 @@ pub const MAX_TARGETS: usize = 16;
 /// The largest vertex error a basis animation aims for, as a fraction of
 /// the tree's height.
 pub const ERROR_BUDGET: f32 = 0.005;
+/// Most residual morph targets of a skinned animation: engines that play
+/// skeletons want few, and each costs every vertex's bytes.
+pub const MAX_SKIN_TARGETS: usize = 4;
+/// How much above the error of every residual target a skinned
+/// animation short of its budget accepts, to carry fewer targets.
+const SKIN_TARGET_SLACK: f32 = 1.1;
 /// Most groups of leaves that change material at one time.
 pub const MAX_LEAF_GROUPS: usize = 16;
 /// Bands in which the bark changes, from the ground up.
@@ -112,6 +122,10 @@ pub enum AnimationKind {
     Basis,
     /// [`AnimatedGlbBuilder`]: one morph target per keyframe.
     Keyframes,
+    /// [`BasisGlbBuilder::skinned`]: a skeleton following the branch
+    /// hierarchy ([`AnimatedOptions::skeleton_joints`] joints at most),
+    /// with a few residual morph targets.
+    Skinned,
 }
 
 /// The animated GLB of either kind, built from frames pushed in order.
@@ -141,6 +155,9 @@ impl AnimationBuilder {
                 bounds,
                 options,
             )?)),
+            AnimationKind::Skinned => AnimationBuilder::Basis(Box::new(
+                BasisGlbBuilder::new(topology, reference_radii, bounds, options)?.skinned(),
+            )),
         })
     }
 
@@ -174,6 +191,9 @@ pub struct BasisReport {
     pub within_budget: bool,
     /// The tree's height: the largest vertical extent of a sample, metres.
     pub height: f32,
+    /// Joints of a skinned animation besides its still root (0 for a
+    /// basis).
+    pub joints: usize,
 }
 
 /// Builds the basis animation of a sequence from its frames, pushed in
@@ -220,6 +240,8 @@ pub struct BasisGlbBuilder {
     heights: f32,
     /// Most samples [`MAX_SAMPLE_BYTES`] allows.
     max_samples: usize,
+    /// Whether the motion goes to a skeleton first ([`BasisGlbBuilder::skinned`]).
+    skinned: bool,
 }
 
 /// The first frame as the file stores it, and what the document needs of
@@ -238,6 +260,7 @@ struct BasePose {
     /// outline.
     leaf_uvs: [Vec<Vec2>; 2],
     leaf_indices: Vec<u32>,
+    per_leaf: usize,
 }
 
 impl BasisGlbBuilder {
@@ -278,7 +301,21 @@ impl BasisGlbBuilder {
             bark_blends: Vec::new(),
             heights: 0.0,
             max_samples,
+            skinned: false,
         })
+    }
+
+    /// Makes this builder write a skinned animation: joints that follow
+    /// the branch hierarchy (at most [`AnimatedOptions::skeleton_joints`]
+    /// besides the root), their translation, rotation and scale at every
+    /// sample, and the fewest residual morph targets (up to
+    /// [`MAX_SKIN_TARGETS`]) that keep every vertex within
+    /// [`SKIN_ERROR_BUDGET`] of the tree's height. See `skin` and
+    /// `skinning` for the choices.
+    #[must_use]
+    pub fn skinned(mut self) -> BasisGlbBuilder {
+        self.skinned = true;
+        self
     }
 
     /// Frames pushed so far.
@@ -355,6 +392,7 @@ impl BasisGlbBuilder {
             branch_indices: branches.indices.clone(),
             leaf_uvs: [leaves.uvs.clone(), self.second_uvs()],
             leaf_indices: leaves.indices.clone(),
+            per_leaf: self.meshes.leaves().shape().vertices_per_leaf(),
         })
     }
 
@@ -452,13 +490,29 @@ impl BasisGlbBuilder {
                 self.times.len()
             )));
         }
-        let base = self.base.take().expect("a pushed frame sets the base");
-        let (targets, report) = self.fit();
+        let mut base = self.base.take().expect("a pushed frame sets the base");
+        let skin = self.rig_up(&mut base)?;
+        let budget = if skin.is_some() {
+            SKIN_ERROR_BUDGET
+        } else {
+            ERROR_BUDGET
+        };
+        let (targets, mut report) = self.fit(budget);
+        if let Some(skin) = &skin {
+            let error = skin.max_error(&base, &targets);
+            report.max_error = error / report.height;
+            report.within_budget = error <= budget * report.height;
+            report.joints = skin.rig.joint_count() - 1;
+        }
         let encoding = self.options.encoding;
         let mut w = Writer::new(encoding);
         let bark_looks = self.write_materials(&mut w.doc);
+        // Bark bands by the first frame's heights, skinned or not.
+        let first = skin
+            .as_ref()
+            .map_or(&base.positions[..], |s| s.first_positions());
         let plans = appearance::plan(&appearance::Inputs {
-            base: &base.positions[..base.branch_vertices],
+            base: &first[..base.branch_vertices],
             branch_indices: &base.branch_indices,
             leaf_indices: &base.leaf_indices,
             per_leaf: self.meshes.leaves().shape().vertices_per_leaf(),
@@ -469,49 +523,121 @@ impl BasisGlbBuilder {
             bark_blends: &self.bark_blends,
             bark_looks,
         });
-        let nodes = write_nodes(&mut w, &plans, &base, &targets);
-        write_animation(&mut w.doc, &self.times, &targets, &plans, &nodes);
-        let mut doc = w.into_doc();
-        let mut tree =
-            json!({ "name": "tree", "children": nodes.iter().map(|n| n.1).collect::<Vec<_>>() });
-        if let Some((t, s)) = self.grid {
-            tree["translation"] = json!(t.to_array());
-            tree["scale"] = json!([s, s, s]);
-        }
-        doc.nodes.push(tree);
-        let root_node = doc.nodes.len() - 1;
+        let parts = Parts {
+            plans: &plans,
+            base: &base,
+            targets: &targets,
+            skin: skin.as_ref(),
+        };
+        let nodes = write_nodes(&mut w, &parts);
         let mut root = Map::new();
+        let scene_nodes = match &skin {
+            None => {
+                write_animation(&mut w.doc, &self.times, &parts, &nodes, None);
+                let mut tree = json!({ "name": "tree", "children": nodes.iter().map(|n| n.1).collect::<Vec<_>>() });
+                if let Some((t, s)) = self.grid {
+                    tree["translation"] = json!(t.to_array());
+                    tree["scale"] = json!([s, s, s]);
+                }
+                w.doc.nodes.push(tree);
+                vec![w.doc.nodes.len() - 1]
+            }
+            // Skinned mesh nodes are scene roots: glTF ignores their
+            // parents' transforms, and validators warn of any.
+            Some(skin) => {
+                let (skin_json, first_joint) = skin.write_skeleton(&mut w, self.grid);
+                root.insert("skins".into(), json!([skin_json]));
+                write_animation(&mut w.doc, &self.times, &parts, &nodes, Some(first_joint));
+                std::iter::once(first_joint)
+                    .chain(nodes.iter().map(|n| n.1))
+                    .collect()
+            }
+        };
+        let doc = w.into_doc();
         root.insert("asset".into(), asset());
         root.insert("scene".into(), json!(0));
+        let (kind, error_budget) = match skin {
+            Some(_) => ("skinned", SKIN_ERROR_BUDGET),
+            None => ("basis", ERROR_BUDGET),
+        };
+        let mut extras = json!({
+            "animation": kind,
+            "targets": report.targets,
+            "max_error": report.max_error,
+            "within_budget": report.within_budget,
+            "error_budget": error_budget,
+        });
+        if report.joints > 0 {
+            extras["joints"] = json!(report.joints);
+        }
         root.insert(
             "scenes".into(),
-            json!([{
-                "nodes": [root_node],
-                "extras": { "treemorph": {
-                    "animation": "basis",
-                    "targets": report.targets,
-                    "max_error": report.max_error,
-                    "within_budget": report.within_budget,
-                    "error_budget": ERROR_BUDGET,
-                }},
-            }]),
+            json!([{ "nodes": scene_nodes, "extras": { "treemorph": extras } }]),
         );
         Ok((doc, root, report))
     }
 
-    /// The principal displacements, cut to the fewest that keep within the
-    /// budget, in the file's encoding, and the error of what is written.
-    fn fit(&mut self) -> (Targets, BasisReport) {
-        let principal = motion::principal(&self.displacements, &self.normal_changes, MAX_TARGETS);
+    /// For a skinned animation, the skeleton, with the base pose made the
+    /// bind pose and the samples the residual the skeleton leaves.
+    fn rig_up(&mut self, base: &mut BasePose) -> Result<Option<skinning::Skin>, EncodeError> {
+        if !self.skinned {
+            return Ok(None);
+        }
+        let owners = self.meshes.branches().vertex_owners();
+        let leaf_vertices = base.positions.len() - base.branch_vertices;
+        let samples = skin::Samples {
+            base: &base.positions,
+            base_normals: &base.normals,
+            displacements: &self.displacements,
+            normal_changes: &self.normal_changes,
+        };
+        let profiles = skin::strand_profiles(self.topology.strands.len(), &owners, &samples);
+        let rig = skin::Rig::new(
+            &self.topology,
+            &owners,
+            (base.per_leaf, leaf_vertices),
+            &profiles,
+            self.options.skeleton_joints,
+        );
+        if rig.joint_count() > usize::from(u16::MAX) {
+            return Err(EncodeError::TooLarge(format!(
+                "a skeleton of {} joints does not fit glTF's 16-bit joint indices; set skeleton_joints",
+                rig.joint_count()
+            )));
+        }
+        skinning::rig_up(
+            base,
+            &mut self.displacements,
+            &mut self.normal_changes,
+            &owners,
+            rig,
+            self.grid,
+        )
+        .map(Some)
+    }
+
+    /// The principal displacements, cut to the fewest that keep within
+    /// `budget` (a fraction of the height), in the file's encoding, and
+    /// the error of what is written.
+    fn fit(&mut self, budget: f32) -> (Targets, BasisReport) {
+        let most = if self.skinned {
+            MAX_SKIN_TARGETS
+        } else {
+            MAX_TARGETS
+        };
+        let principal = motion::principal(&self.displacements, &self.normal_changes, most);
         let height = self.heights.max(1e-6);
-        let budget = ERROR_BUDGET * height;
-        let (k, error) = motion::fewest_within(
+        let budget = budget * height;
+        let (mut k, mut error) = motion::fewest_within(
             &self.displacements,
             &principal.positions,
             &principal.weights,
             principal.count,
             budget,
         );
+        if self.skinned && error > budget {
+            (k, error) = self.fewest_that_help(&principal);
+        }
         let targets = Targets::encode(&principal, k, self.grid);
         // Float targets are the basis itself, offset and scaled (rounding
         // apart); quantised ones are measured again as a player reads
@@ -541,8 +667,33 @@ impl BasisGlbBuilder {
             max_error: error / height,
             within_budget: error <= budget,
             height,
+            joints: 0,
         };
         (targets, report)
+    }
+
+    /// A skinned animation's residual targets when none reach the budget:
+    /// the fewest within [`SKIN_TARGET_SLACK`] of what all of them reach.
+    /// Targets spanning what the skeleton misses cost every vertex's
+    /// bytes, so those that barely help are left out.
+    fn fewest_that_help(&self, principal: &motion::Principal) -> (usize, f32) {
+        let all = motion::Pass {
+            count: principal.count,
+            upto: principal.count,
+            every: 1,
+        };
+        let errors = motion::max_errors(
+            &self.displacements,
+            &principal.positions,
+            &principal.weights,
+            all,
+        );
+        let best = errors.last().copied().unwrap_or(0.0);
+        let k = errors
+            .iter()
+            .position(|&e| e <= best * SKIN_TARGET_SLACK)
+            .unwrap_or(principal.count);
+        (k, errors[k])
     }
 
     /// Materials: the bark looks of the first and (when it differs) the
@@ -706,6 +857,25 @@ impl Targets {
     }
 }
 
+impl Targets {
+    /// Vertex `v`'s offset at sample `f`, as a player reads the targets.
+    fn offset_at(&self, f: usize, v: usize) -> Vec3 {
+        let count = self.stored.len();
+        let mut d = Vec3::ZERO;
+        for (k, t) in self.stored.iter().enumerate() {
+            d += match t {
+                StoredTarget::Float(p, _) => p[v] * self.weights[f * count + k],
+                StoredTarget::Quantised(..) => {
+                    let c = self.read_back.column(k);
+                    let n = c.len() / 3;
+                    Vec3::new(c[v], c[n + v], c[2 * n + v]) * self.weights_read_back[f * count + k]
+                }
+            };
+        }
+        d
+    }
+}
+
 fn add_scaled(to: &mut [f32], from: &[f32], by: f32) {
     for (t, f) in to.iter_mut().zip(from) {
         *t += f * by;
@@ -764,20 +934,35 @@ struct VertexSet {
     count: usize,
     position: usize,
     normal: usize,
+    /// JOINTS_0 and WEIGHTS_0 (skinned).
+    influences: Option<(usize, usize)>,
     /// TEXCOORD_0 accessors, written when first used: the first
     /// material's, and (leaves) the second material's outline.
     uvs: [Option<usize>; 2],
     targets: Vec<Value>,
 }
 
-/// The vertices of the first frame's meshes that a node draws: `indices`
-/// into `base` (branch vertices first, then leaf vertices).
-fn write_vertex_set(
-    w: &mut Writer,
-    base: &BasePose,
-    targets: &Targets,
-    indices: &[usize],
-) -> VertexSet {
+/// What the nodes are written from.
+struct Parts<'a> {
+    plans: &'a [NodePlan],
+    base: &'a BasePose,
+    targets: &'a Targets,
+    skin: Option<&'a skinning::Skin>,
+}
+
+impl Parts<'_> {
+    /// Whether a node of `plan` carries the `hidden` target (skinned
+    /// swap nodes).
+    fn hides(&self, plan: &NodePlan) -> bool {
+        self.skin.is_some() && plan.show != Show::Always
+    }
+}
+
+/// The vertices of the base meshes that a node draws: `indices` into
+/// `base` (branch vertices first, then leaf vertices), with the `hidden`
+/// target when `hides`.
+fn write_vertex_set(w: &mut Writer, parts: &Parts, indices: &[usize], hides: bool) -> VertexSet {
+    let base = parts.base;
     let count = indices.len();
     let quantised = w.encoding != AnimatedEncoding::Float;
     let (position, normal) = if quantised {
@@ -797,39 +982,47 @@ fn write_vertex_set(
             w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
         )
     };
-    let targets = targets
+    let hidden = parts.skin.filter(|_| hides).map(|s| &s.hidden);
+    let targets = parts
+        .targets
         .stored
         .iter()
-        .map(|t| {
-            let (pa, na) = match t {
-                StoredTarget::Float(p, n) => {
-                    let (p, n) = (pick(p, indices), pick(n, indices));
-                    (
-                        w.attribute(count, vec3_bytes(&p), Attr::Vec3F32, Some(f32_bounds(&p))),
-                        w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
-                    )
-                }
-                StoredTarget::Quantised(p, n) => {
-                    let (p, n) = (pick(p, indices), pick(n, indices));
-                    let bounds = i16_bounds(&p);
-                    let pb = meshopt_if(w.encoding, i16x4_bytes(&p), 8);
-                    let nb = meshopt_if(w.encoding, i8x4_bytes(&n), 4);
-                    (
-                        w.attribute(count, pb, Attr::Vec3I16, Some(bounds)),
-                        w.attribute(count, nb, Attr::Vec3I8, None),
-                    )
-                }
-            };
-            json!({ "POSITION": pa, "NORMAL": na })
-        })
+        .chain(hidden)
+        .map(|t| write_target(w, t, indices))
         .collect();
     VertexSet {
         count,
         position,
         normal,
+        influences: parts.skin.map(|s| s.write_influences(w, indices)),
         uvs: [None; 2],
         targets,
     }
+}
+
+/// One morph target of the vertices at `indices`.
+fn write_target(w: &mut Writer, t: &StoredTarget, indices: &[usize]) -> Value {
+    let count = indices.len();
+    let (pa, na) = match t {
+        StoredTarget::Float(p, n) => {
+            let (p, n) = (pick(p, indices), pick(n, indices));
+            (
+                w.attribute(count, vec3_bytes(&p), Attr::Vec3F32, Some(f32_bounds(&p))),
+                w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
+            )
+        }
+        StoredTarget::Quantised(p, n) => {
+            let (p, n) = (pick(p, indices), pick(n, indices));
+            let bounds = i16_bounds(&p);
+            let pb = meshopt_if(w.encoding, i16x4_bytes(&p), 8);
+            let nb = meshopt_if(w.encoding, i8x4_bytes(&n), 4);
+            (
+                w.attribute(count, pb, Attr::Vec3I16, Some(bounds)),
+                w.attribute(count, nb, Attr::Vec3I8, None),
+            )
+        }
+    };
+    json!({ "POSITION": pa, "NORMAL": na })
 }
 
 /// `values` at `indices`.
@@ -903,23 +1096,19 @@ fn target_names(targets: &Targets) -> Vec<String> {
 /// morph data per geometry, so primitives sharing one big vertex set would
 /// each upload all of its targets. The two sides of a swap draw the same
 /// vertices and share their accessors (their texture coordinates differ).
-fn write_nodes(
-    w: &mut Writer,
-    plans: &[NodePlan],
-    base: &BasePose,
-    targets: &Targets,
-) -> Vec<(usize, usize)> {
-    let names = target_names(targets);
+fn write_nodes(w: &mut Writer, parts: &Parts) -> Vec<(usize, usize)> {
+    let names = target_names(parts.targets);
     let mut sets: std::collections::HashMap<Vec<usize>, VertexSet> = Default::default();
     let mut nodes = Vec::new();
-    for (p, plan) in plans.iter().enumerate() {
+    for (p, plan) in parts.plans.iter().enumerate() {
+        let hides = parts.hides(plan);
         let prims: Vec<Value> = plan
             .primitives
             .iter()
             .filter(|(_, indices)| !indices.is_empty())
             .map(|(&(material, uv, _), indices)| {
                 let mut prim =
-                    write_primitive(w, &mut sets, base, targets, plan.leaves, uv, indices);
+                    write_primitive(w, &mut sets, parts, (plan.leaves, hides), uv, indices);
                 prim["material"] = json!(material);
                 prim
             })
@@ -928,13 +1117,22 @@ fn write_nodes(
             continue;
         }
         let mut mesh = json!({ "name": plan.name, "primitives": prims });
+        let mut names = names.clone();
+        let mut weights = vec![0.0; names.len()];
+        if let Some(skin) = parts.skin.filter(|_| hides) {
+            names.push("hidden".into());
+            let hidden = matches!(plan.show, Show::From(_));
+            weights.push(if hidden { skin.hidden_weight } else { 0.0 });
+        }
         if !names.is_empty() {
-            mesh["weights"] = json!(vec![0.0; names.len()]);
+            mesh["weights"] = json!(weights);
             mesh["extras"] = json!({ "targetNames": names });
         }
         w.doc.meshes.push(mesh);
         let mut node = json!({ "name": plan.name, "mesh": w.doc.meshes.len() - 1 });
-        if matches!(plan.show, Show::From(_)) {
+        if parts.skin.is_some() {
+            node["skin"] = json!(0);
+        } else if matches!(plan.show, Show::From(_)) {
             node["scale"] = json!([0.0, 0.0, 0.0]);
         }
         w.doc.nodes.push(node);
@@ -943,19 +1141,19 @@ fn write_nodes(
     nodes
 }
 
-/// A primitive drawing `indices` (into the branch or leaf vertices) with
-/// texture coordinate set `uv`, over the vertex set of exactly the
-/// vertices it uses (written on first use, then shared), with the morph
-/// targets when there are any.
+/// A primitive drawing `indices` (into the branch or leaf vertices, as
+/// `leaves_hides.0` says) with texture coordinate set `uv`, over the
+/// vertex set of exactly the vertices it uses (written on first use, then
+/// shared), with the morph targets when there are any.
 fn write_primitive(
     w: &mut Writer,
     sets: &mut std::collections::HashMap<Vec<usize>, VertexSet>,
-    base: &BasePose,
-    targets: &Targets,
-    leaves: bool,
+    parts: &Parts,
+    (leaves, hides): (bool, bool),
     uv: usize,
     indices: &[u32],
 ) -> Value {
+    let base = parts.base;
     let offset = if leaves { base.branch_vertices } else { 0 };
     let local: std::collections::BTreeSet<u32> = indices.iter().copied().collect();
     let global: Vec<usize> = local.iter().map(|&i| offset + i as usize).collect();
@@ -965,7 +1163,7 @@ fn write_primitive(
     }
     let set = sets
         .entry(global.clone())
-        .or_insert_with(|| write_vertex_set(w, base, targets, &global));
+        .or_insert_with(|| write_vertex_set(w, parts, &global, hides));
     let uv_accessor = *set.uvs[uv].get_or_insert_with(|| {
         let all: &[Vec2] = if leaves {
             &base.leaf_uvs[uv]
@@ -988,6 +1186,10 @@ fn write_primitive(
         "indices": accessor,
         "mode": crate::gl::TRIANGLES,
     });
+    if let Some((joints, weights)) = set.influences {
+        prim["attributes"]["JOINTS_0"] = json!(joints);
+        prim["attributes"]["WEIGHTS_0"] = json!(weights);
+    }
     if !set.targets.is_empty() {
         prim["targets"] = json!(set.targets);
     }
@@ -995,27 +1197,72 @@ fn write_primitive(
 }
 
 /// The animation: the weights of every mesh node (one LINEAR sampler
-/// keyed at every sample), and every swap node's scale (STEP).
+/// keyed at every sample), and every swap node's visibility: its scale
+/// (STEP) in a basis animation, its `hidden` weight in a skinned one,
+/// whose joints (from node `first_joint` on) get their channels too.
 fn write_animation(
     doc: &mut Doc<'static>,
     times: &[f32],
-    targets: &Targets,
-    plans: &[NodePlan],
+    parts: &Parts,
     nodes: &[(usize, usize)],
+    first_joint: Option<usize>,
 ) {
+    let targets = parts.targets;
     let mut samplers = Vec::new();
     let mut channels = Vec::new();
+    let mut input = None;
     if !targets.stored.is_empty() {
-        let input = time_accessor(doc, times);
+        let input = *input.get_or_insert_with(|| time_accessor(doc, times));
         let view = doc.view(Data::Owned(f32_bytes(&targets.weights)), None, None);
         let output = doc.accessor(json!({
             "bufferView": view, "componentType": FLOAT, "count": targets.weights.len(), "type": "SCALAR",
         }));
         samplers.push(json!({ "input": input, "output": output, "interpolation": "LINEAR" }));
-        for &(_, node) in nodes {
-            channels.push(json!({ "sampler": 0, "target": { "node": node, "path": "weights" } }));
+        for &(p, node) in nodes {
+            if !parts.hides(&parts.plans[p]) {
+                channels
+                    .push(json!({ "sampler": 0, "target": { "node": node, "path": "weights" } }));
+            }
         }
     }
+    match (parts.skin, first_joint) {
+        (Some(skin), Some(first)) => {
+            hidden_channels(
+                doc,
+                times,
+                parts,
+                nodes,
+                skin,
+                (&mut samplers, &mut channels),
+            );
+            let input = *input.get_or_insert_with(|| time_accessor(doc, times));
+            skin.write_channels(doc, input, first, &mut samplers, &mut channels);
+        }
+        _ => scale_channels(
+            doc,
+            times,
+            parts.plans,
+            nodes,
+            (&mut samplers, &mut channels),
+        ),
+    }
+    if !channels.is_empty() {
+        doc.animations
+            .push(json!({ "name": "morph", "samplers": samplers, "channels": channels }));
+    }
+}
+
+/// Samplers and channels being gathered.
+type Channels<'a> = (&'a mut Vec<Value>, &'a mut Vec<Value>);
+
+/// A basis animation's swap nodes: scale 1 or 0, STEP at the swap.
+fn scale_channels(
+    doc: &mut Doc<'static>,
+    times: &[f32],
+    plans: &[NodePlan],
+    nodes: &[(usize, usize)],
+    (samplers, channels): Channels,
+) {
     let mut scales: Option<[usize; 2]> = None;
     let mut inputs = std::collections::HashMap::new();
     for &(p, node) in nodes {
@@ -1043,9 +1290,42 @@ fn write_animation(
             "sampler": samplers.len() - 1, "target": { "node": node, "path": "scale" },
         }));
     }
-    if !channels.is_empty() {
-        doc.animations
-            .push(json!({ "name": "morph", "samplers": samplers, "channels": channels }));
+}
+
+/// A skinned animation's swap nodes: their weights, the motion's then
+/// `hidden` switching at the swap (see [`skinning::swap_keys`]).
+fn hidden_channels(
+    doc: &mut Doc<'static>,
+    times: &[f32],
+    parts: &Parts,
+    nodes: &[(usize, usize)],
+    skin: &skinning::Skin,
+    (samplers, channels): Channels,
+) {
+    let count = parts.targets.stored.len();
+    for &(p, node) in nodes {
+        let (swap, hidden_before) = match parts.plans[p].show {
+            Show::Always => continue,
+            Show::Until(t) => (t, false),
+            Show::From(t) => (t, true),
+        };
+        let (keys, values) = skinning::swap_keys(
+            times,
+            &parts.targets.weights,
+            count,
+            swap,
+            hidden_before,
+            skin.hidden_weight,
+        );
+        let input = time_accessor(doc, &keys);
+        let view = doc.view(Data::Owned(f32_bytes(&values)), None, None);
+        let output = doc.accessor(json!({
+            "bufferView": view, "componentType": FLOAT, "count": values.len(), "type": "SCALAR",
+        }));
+        samplers.push(json!({ "input": input, "output": output, "interpolation": "LINEAR" }));
+        channels.push(json!({
+            "sampler": samplers.len() - 1, "target": { "node": node, "path": "weights" },
+        }));
     }
 }
 

@@ -371,6 +371,8 @@ struct StrandPlan {
     /// Starts at another strand's node: first ring takes the child's radius
     /// and there is no base cap.
     child: bool,
+    /// Index of the strand in the topology.
+    strand: u32,
 }
 
 impl StrandPlan {
@@ -484,6 +486,7 @@ impl BranchMesher {
                 sides: 0,
                 first_vertex: 0,
                 child,
+                strand: s as u32,
             });
             nodes.extend_from_slice(ids);
         }
@@ -564,6 +567,27 @@ impl BranchMesher {
         check_nodes(uv_frame, self.node_count)?;
         self.write_uvs(uv_frame, options.min_uv_radius);
         Ok(())
+    }
+
+    /// Per vertex: the strand whose tube it belongs to and the node its
+    /// ring is at (the tip's apex at the last node, the base cap's centre
+    /// at the first). What a skeleton binds the bark to.
+    pub fn vertex_owners(&self) -> Vec<(u32, NodeId)> {
+        let mut out = Vec::with_capacity(self.vertex_count());
+        for plan in &self.plans {
+            let a = plan.first_node as usize;
+            let ids = &self.nodes[a..a + plan.node_count as usize];
+            let stride = plan.sides as usize + 1;
+            out.extend(
+                ids.iter()
+                    .flat_map(|&id| std::iter::repeat_n((plan.strand, id), stride)),
+            );
+            out.push((plan.strand, ids[ids.len() - 1]));
+            if !plan.child {
+                out.push((plan.strand, ids[0]));
+            }
+        }
+        out
     }
 
     /// Number of strands that have a tube.

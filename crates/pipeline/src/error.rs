@@ -34,7 +34,9 @@ impl ErrorCoded for SpecError {
     fn error_code(&self) -> ErrorCode {
         match self {
             SpecError::Frames { .. } => ErrorCode::InvalidRequest,
-            SpecError::Keyframes { .. } | SpecError::Schedule { .. } => ErrorCode::InvalidJob,
+            SpecError::Keyframes { .. }
+            | SpecError::SkeletonJoints { .. }
+            | SpecError::Schedule { .. } => ErrorCode::InvalidJob,
             SpecError::MorphOptions(e) => match e.error_code() {
                 ErrorCode::Internal => ErrorCode::Internal,
                 _ => ErrorCode::InvalidJob,

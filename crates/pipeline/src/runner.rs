@@ -733,13 +733,17 @@ fn finish(
     Ok((outcome, rendered.probed))
 }
 
-/// The basis animation's figures in `metrics.json`: its morph target
-/// count, its largest vertex error as a fraction of the tree's height,
-/// and whether that is within the budget.
+/// The basis or skinned animation's figures in `metrics.json`: its morph
+/// target count, its largest vertex error as a fraction of the tree's
+/// height, whether that is within the budget, and a skeleton's joint
+/// count.
 fn add_animation_metrics(metrics: &mut Value, report: &BasisReport) {
     metrics["animation_targets"] = report.targets.into();
     metrics["animation_max_error"] = f64::from(report.max_error).into();
     metrics["animation_within_budget"] = report.within_budget.into();
+    if report.joints > 0 {
+        metrics["animation_joints"] = report.joints.into();
+    }
 }
 
 /// Bounds of every node (with its radius) and leaf (with its size) of a
@@ -817,7 +821,8 @@ impl Encoders {
             .then(|| {
                 let options = AnimatedOptions::default()
                     .with_keyframes(picks.len())
-                    .with_encoding(render.encoding);
+                    .with_encoding(render.encoding)
+                    .with_skeleton_joints(render.skeleton_joints as usize);
                 AnimationBuilder::new(
                     render.animation,
                     topology,

@@ -18,7 +18,7 @@ use treemorph_api::jobs::{
     AnimationEncoding, JobKind, JobRequest, LeafAssignment, Matching, MorphJobOptions,
     MorphRequest, Outputs, ScheduleKind, SketchFit, SketchJobOptions, SketchMethod, SketchRequest,
 };
-use treemorph_gltf::animated::AnimatedEncoding;
+use treemorph_gltf::animated::{AnimatedEncoding, DEFAULT_SKELETON_JOINTS};
 use treemorph_gltf::basis::AnimationKind;
 use treemorph_morph::{ChainMatching, LeafMorph, MorphError, MorphOptions};
 use treemorph_sketch::{Fit, Method, Sketch, SketchError, SketchOptions, View};
@@ -35,6 +35,9 @@ pub const DEFAULT_BASIS_SAMPLES: u32 = 120;
 /// Seed of the random leaf assignment: fixed, so the same request always
 /// gives the same animation.
 const RANDOM_LEAVES_SEED: u64 = 0;
+/// Most joints a skinned animation may ask for: glTF's 16-bit joint
+/// indices, less the root.
+pub const MAX_SKELETON_JOINTS: u32 = 65_534;
 
 /// Limits a process applies to requests (the service's settings; the
 /// command line uses the defaults).
@@ -70,6 +73,14 @@ pub enum SpecError {
         frames: u32,
         /// The process's limit.
         max: u32,
+    },
+    /// `options.skeleton_joints` is above [`MAX_SKELETON_JOINTS`].
+    #[error(
+        "options.skeleton_joints is {joints}; it must be at most {MAX_SKELETON_JOINTS} (0: one joint per chain)"
+    )]
+    SkeletonJoints {
+        /// The joint cap asked for.
+        joints: u32,
     },
     /// `options.keyframes` is outside `2..=frames`.
     #[error("options.keyframes is {keyframes}; it must be from 2 to frames ({frames})")]
@@ -109,6 +120,9 @@ pub struct RenderSpec {
     pub encoding: AnimatedEncoding,
     /// What the animated GLB's morph targets are.
     pub animation: AnimationKind,
+    /// Most joints of a skinned animation besides its root (0: one per
+    /// chain).
+    pub skeleton_joints: u32,
     /// Whether the run measures its frames: the output-level check and
     /// the per-frame series of `metrics.json`. Always true for a parsed
     /// request; renders on request turn it off ([`JobSpec::unmeasured`]).
@@ -360,22 +374,31 @@ pub fn sketch_options(o: &SketchJobOptions) -> SketchOptions {
 
 fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, SpecError> {
     let (frames, outputs) = (request.frames(), *request.outputs());
-    let (keyframes, encoding, animation) = match request {
+    let (keyframes, encoding, animation, joints) = match request {
         JobRequest::Morph(r) => (
             r.options.keyframes,
             r.options.animation_encoding,
             r.options.animation,
+            r.options.skeleton_joints,
         ),
         JobRequest::Sketch(r) => (
             r.options.keyframes,
             r.options.animation_encoding,
             r.options.animation,
+            r.options.skeleton_joints,
         ),
     };
     let animation = match animation {
         treemorph_api::jobs::AnimationKind::Basis => AnimationKind::Basis,
         treemorph_api::jobs::AnimationKind::Keyframes => AnimationKind::Keyframes,
+        treemorph_api::jobs::AnimationKind::Skinned => AnimationKind::Skinned,
     };
+    let skeleton_joints = joints.unwrap_or(DEFAULT_SKELETON_JOINTS as u32);
+    if skeleton_joints > MAX_SKELETON_JOINTS {
+        return Err(SpecError::SkeletonJoints {
+            joints: skeleton_joints,
+        });
+    }
     // A basis samples every frame unless told otherwise (its size does not
     // grow with the samples), up to DEFAULT_BASIS_SAMPLES: its builder
     // keeps every sample's displacements.
@@ -407,6 +430,7 @@ fn render_spec(request: &JobRequest, limits: &Limits) -> Result<RenderSpec, Spec
             AnimationEncoding::Meshopt => AnimatedEncoding::Meshopt,
         },
         animation,
+        skeleton_joints,
         measured: true,
     })
 }

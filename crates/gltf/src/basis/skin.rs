@@ -1,0 +1,670 @@
+//! The skeleton of a `skinned` animation: joints that follow the branch
+//! hierarchy, their transforms at every sample, and what they leave to
+//! morph targets.
+//!
+//! - **Joints.** Every strand (chain) of the topology starts as a joint,
+//!   child of the joint of the strand it branches from. While there are
+//!   more than the cap, the joint holding the fewest vertices merges into
+//!   its parent (bottom-up: twigs into their branches first). Strands
+//!   without geometry never get a joint of their own. Joint 0 is a still
+//!   root (`tree`) above every other, so the skin has one common root.
+//! - **Bind pose.** A joint is bound where its vertices are spread
+//!   widest: at the sample where its chains are grown (a growing chain's
+//!   first samples hold it collapsed at its junction, which no transform
+//!   can unfold). The file's vertex positions are each vertex at its
+//!   joint's bind sample.
+//! - **Transforms.** At every sample a joint's transform is the
+//!   similarity (uniform scale, rotation, translation) that carries its
+//!   bind vertices closest to where they are, by least squares. So growth
+//!   and wilt scale joints from (nearly) zero, and a morph's turning
+//!   chains turn their joints. Scales are kept at or above
+//!   [`MIN_SCALE`] so that a child's transform relative to a collapsed
+//!   parent stays finite; a joint at that scale draws a speck.
+//! - **Residual.** What a joint's similarity cannot express (bending
+//!   within a merged joint, tip-first growth, leaf outline changes) is the
+//!   vertex's offset from its bind position in the joint's own frame;
+//!   the caller spans those offsets with a few morph targets, applied
+//!   before skinning as glTF does.
+//!
+//! The rotation of a joint is extracted by the iterative method of
+//! Müller et al. 2016 ("A robust method to extract the rotational part of
+//! deformations"), warm-started from the previous sample: each fit is a
+//! 3 × 3 problem, thousands per animation, where a general SVD call
+//! costs more than the fit. Written here because no crate offers it.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use glam::{DMat3, DQuat, DVec3, Mat4, Quat, Vec3};
+use rayon::prelude::*;
+use treemorph_tree::{FrameTopology, NodeId};
+
+use super::motion::Columns;
+
+/// The smallest joint scale stored.
+pub(crate) const MIN_SCALE: f64 = 1e-3;
+/// Below this scale a sample's vertices are left out of the residual:
+/// their offsets, divided by the scale, would swamp the basis, and the
+/// joint draws them within this fraction of its size anyway.
+const RESIDUAL_SCALE: f64 = 0.05;
+
+/// The joints and which joint moves each vertex.
+#[derive(Clone, Debug)]
+pub(crate) struct Rig {
+    /// Per vertex (branch vertices, then leaf vertices): its joint.
+    pub(crate) vertex_joint: Vec<u32>,
+    /// Per joint: its parent (joint 0, the still root, has none); parents
+    /// come before their children.
+    pub(crate) parents: Vec<Option<usize>>,
+    /// Per joint: the strand at its top (none for the root).
+    pub(crate) top_strands: Vec<Option<u32>>,
+}
+
+impl Rig {
+    /// The joints of `topology` for meshes whose branch vertices belong to
+    /// `owners` (strand, node), followed by `leaf_vertices` leaf vertices,
+    /// `per_leaf` per leaf; at most `cap` joints besides the root (0: one
+    /// per strand with geometry), merged by their size `profiles` (see
+    /// [`strand_profiles`]) and weight.
+    pub(crate) fn new(
+        topology: &FrameTopology,
+        owners: &[(u32, NodeId)],
+        (per_leaf, leaf_vertices): (usize, usize),
+        profiles: &[Vec<f32>],
+        cap: usize,
+    ) -> Rig {
+        let strands = topology.strands.len();
+        let node_owner = node_owners(topology);
+        let parents = strand_parents(topology, &node_owner);
+        let vertex_strand: Vec<Option<u32>> = owners
+            .iter()
+            .map(|&(s, _)| Some(s))
+            .chain((0..leaf_vertices).map(|v| {
+                let leaf = topology.leaves.get(v / per_leaf.max(1))?;
+                node_owner.get(leaf.node as usize).copied().flatten()
+            }))
+            .collect();
+        let mut weights = vec![0u64; strands];
+        for s in vertex_strand.iter().flatten() {
+            weights[*s as usize] += 1;
+        }
+        let top = merge(&parents, &weights, profiles, cap);
+        let (joint_of, joint_parents, top_strands) = order_joints(&parents, &top, &weights);
+        let vertex_joint = vertex_strand
+            .iter()
+            .map(|s| s.map_or(0, |s| joint_of[top[s as usize] as usize] as u32))
+            .collect();
+        Rig {
+            vertex_joint,
+            parents: joint_parents,
+            top_strands,
+        }
+    }
+
+    pub(crate) fn joint_count(&self) -> usize {
+        self.parents.len()
+    }
+
+    /// Each joint's vertices.
+    pub(crate) fn members(&self) -> Vec<Vec<u32>> {
+        let mut out = vec![Vec::new(); self.joint_count()];
+        for (v, &j) in self.vertex_joint.iter().enumerate() {
+            out[j as usize].push(v as u32);
+        }
+        out
+    }
+}
+
+/// The strand each node belongs to, as the mesher assigns it: the strand
+/// holding the branch that ends at it, else the first strand starting
+/// there.
+fn node_owners(topology: &FrameTopology) -> Vec<Option<u32>> {
+    let mut owner = vec![None; topology.node_count()];
+    for (s, ids) in topology.strands.iter().enumerate() {
+        for &id in ids.iter().skip(1) {
+            owner[id as usize].get_or_insert(s as u32);
+        }
+    }
+    for (s, ids) in topology.strands.iter().enumerate() {
+        if let Some(&first) = ids.first() {
+            owner[first as usize].get_or_insert(s as u32);
+        }
+    }
+    owner
+}
+
+/// Each strand's parent: the owner of its first node when another (a
+/// strand that starts at its junction), else the owner of that node's
+/// parent node (a strand that starts just past it).
+fn strand_parents(topology: &FrameTopology, node_owner: &[Option<u32>]) -> Vec<Option<u32>> {
+    topology
+        .strands
+        .iter()
+        .enumerate()
+        .map(|(s, ids)| {
+            let first = *ids.first()? as usize;
+            let other = |o: &u32| *o != s as u32;
+            node_owner[first].filter(other).or_else(|| {
+                let parent = topology.parents.get(first).copied().flatten()?;
+                node_owner[parent as usize].filter(other)
+            })
+        })
+        .collect()
+}
+
+/// How much a difference in timing weighs against merging a joint into
+/// its parent: a chain that grows or wilts while its parent holds still
+/// costs up to this many times its vertex count to merge, so chains that
+/// change size together merge first.
+const TIMING_WEIGHT: f32 = 1.0;
+
+/// The top strand of each strand's joint after merging the cheapest
+/// joints into their parents until at most `cap` with vertices remain
+/// (0: no cap). A merge costs the joint's vertex count, more when its
+/// size `profiles` (per strand, per sample, 1 at its largest; empty: no
+/// timing) differ from its parent joint's. Joints without vertices
+/// always merge.
+fn merge(parents: &[Option<u32>], weights: &[u64], profiles: &[Vec<f32>], cap: usize) -> Vec<u32> {
+    let n = parents.len();
+    let mut top: Vec<u32> = (0..n as u32).collect();
+    let mut weight = weights.to_vec();
+    let cost = |top: &mut [u32], weight: &[u64], s: usize| -> u64 {
+        let Some(parent) = parents[s] else {
+            return u64::MAX;
+        };
+        let into = find(top, parent as usize);
+        let apart = match (profiles.get(s), profiles.get(into)) {
+            (Some(a), Some(b)) => a
+                .iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0f32, f32::max),
+            _ => 0.0,
+        };
+        (weight[s] as f32 * (1.0 + TIMING_WEIGHT * apart)).ceil() as u64
+    };
+    let mut heap: BinaryHeap<Reverse<(u64, u32)>> = BinaryHeap::new();
+    for s in (0..n).filter(|&s| parents[s].is_some()) {
+        heap.push(Reverse((cost(&mut top, &weight, s), s as u32)));
+    }
+    let mut count = weights.iter().filter(|&&w| w > 0).count();
+    while let Some(Reverse((c, s))) = heap.pop() {
+        let s = s as usize;
+        if top[s] != s as u32 {
+            continue;
+        }
+        let now = cost(&mut top, &weight, s);
+        if now != c {
+            heap.push(Reverse((now, s as u32)));
+            continue;
+        }
+        let w = weight[s];
+        if w > 0 && (cap == 0 || count <= cap) {
+            break;
+        }
+        let Some(parent) = parents[s] else { continue };
+        let into = find(&mut top, parent as usize);
+        top[s] = into as u32;
+        if w > 0 && weight[into] > 0 {
+            count -= 1;
+        }
+        weight[into] += w;
+        weight[s] = 0;
+        if parents[into].is_some() {
+            heap.push(Reverse((cost(&mut top, &weight, into), into as u32)));
+        }
+    }
+    (0..n).map(|s| find(&mut top, s) as u32).collect()
+}
+
+/// Each strand's size at every sample (the root-mean-square distance of
+/// its bark vertices from their centre), as a fraction of its largest.
+pub(crate) fn strand_profiles(
+    strands: usize,
+    owners: &[(u32, NodeId)],
+    samples: &Samples,
+) -> Vec<Vec<f32>> {
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); strands];
+    for (v, &(s, _)) in owners.iter().enumerate() {
+        members[s as usize].push(v as u32);
+    }
+    members
+        .par_iter()
+        .map(|vs| {
+            let sizes: Vec<f64> = (0..samples.count())
+                .map(|f| {
+                    let n = vs.len().max(1) as f64;
+                    (spread(vs.iter().map(|&v| samples.position(f, v as usize))) / n).sqrt()
+                })
+                .collect();
+            let largest = sizes.iter().copied().fold(0.0, f64::max);
+            if largest <= 0.0 {
+                return Vec::new();
+            }
+            sizes.iter().map(|s| (s / largest) as f32).collect()
+        })
+        .collect()
+}
+
+/// The representative (top strand) of `s`'s joint, compressing the path.
+fn find(top: &mut [u32], s: usize) -> usize {
+    let mut r = s;
+    while top[r] as usize != r {
+        r = top[r] as usize;
+    }
+    let mut c = s;
+    while top[c] as usize != r {
+        let next = top[c] as usize;
+        top[c] = r as u32;
+        c = next;
+    }
+    r
+}
+
+/// Joint indices for the top strands that hold vertices, parents first
+/// (joint 0 the still root), with each joint's parent and top strand.
+#[allow(clippy::type_complexity)]
+fn order_joints(
+    parents: &[Option<u32>],
+    top: &[u32],
+    weights: &[u64],
+) -> (Vec<usize>, Vec<Option<usize>>, Vec<Option<u32>>) {
+    let n = parents.len();
+    let mut total = vec![0u64; n];
+    for (s, &t) in top.iter().enumerate() {
+        total[t as usize] += weights[s];
+    }
+    let mut children: Vec<Vec<u32>> = vec![Vec::new(); n];
+    let mut roots = Vec::new();
+    for s in 0..n {
+        if top[s] as usize != s {
+            continue;
+        }
+        // The joint above a top strand: its parent strand's joint.
+        match parents[s] {
+            Some(p) => children[top[p as usize] as usize].push(s as u32),
+            None => roots.push(s as u32),
+        }
+    }
+    let mut joint_of = vec![0usize; n];
+    let mut joint_parents = vec![None];
+    let mut top_strands = vec![None];
+    let mut stack: Vec<(u32, usize)> = roots.iter().rev().map(|&r| (r, 0)).collect();
+    while let Some((s, above)) = stack.pop() {
+        let mut here = above;
+        if total[s as usize] > 0 {
+            here = joint_parents.len();
+            joint_parents.push(Some(above));
+            top_strands.push(Some(s));
+        }
+        joint_of[s as usize] = here;
+        stack.extend(children[s as usize].iter().rev().map(|&c| (c, here)));
+    }
+    (joint_of, joint_parents, top_strands)
+}
+
+/// A similarity: `x ↦ s · R x + t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Similarity {
+    pub(crate) scale: f64,
+    pub(crate) rotation: DQuat,
+    pub(crate) translation: DVec3,
+}
+
+impl Similarity {
+    const IDENTITY: Similarity = Similarity {
+        scale: 1.0,
+        rotation: DQuat::IDENTITY,
+        translation: DVec3::ZERO,
+    };
+
+    fn apply(&self, p: DVec3) -> DVec3 {
+        self.scale * (self.rotation * p) + self.translation
+    }
+
+    fn inverse(&self) -> Similarity {
+        let r = self.rotation.inverse();
+        Similarity {
+            scale: 1.0 / self.scale,
+            rotation: r,
+            translation: -(r * self.translation) / self.scale,
+        }
+    }
+
+    /// `self ∘ other`.
+    fn then_after(&self, other: &Similarity) -> Similarity {
+        Similarity {
+            scale: self.scale * other.scale,
+            rotation: (self.rotation * other.rotation).normalize(),
+            translation: self.apply(other.translation),
+        }
+    }
+}
+
+/// The samples' positions and normals: the base plus each column.
+pub(crate) struct Samples<'a> {
+    pub(crate) base: &'a [Vec3],
+    pub(crate) base_normals: &'a [Vec3],
+    pub(crate) displacements: &'a Columns,
+    pub(crate) normal_changes: &'a Columns,
+}
+
+impl Samples<'_> {
+    pub(crate) fn count(&self) -> usize {
+        self.displacements.count()
+    }
+
+    pub(crate) fn position(&self, f: usize, v: usize) -> Vec3 {
+        self.base[v] + planar(self.displacements.column(f), v)
+    }
+
+    pub(crate) fn normal(&self, f: usize, v: usize) -> Vec3 {
+        self.base_normals[v] + planar(self.normal_changes.column(f), v)
+    }
+}
+
+/// Vertex `v` of a planar column.
+fn planar(column: &[f32], v: usize) -> Vec3 {
+    let n = column.len() / 3;
+    Vec3::new(column[v], column[n + v], column[2 * n + v])
+}
+
+/// Each joint's bind sample: where its vertices are spread widest.
+pub(crate) fn bind_samples(members: &[Vec<u32>], samples: &Samples) -> Vec<usize> {
+    members
+        .par_iter()
+        .map(|vs| {
+            (0..samples.count())
+                .map(|f| spread(vs.iter().map(|&v| samples.position(f, v as usize))))
+                .enumerate()
+                .fold(
+                    (0, -1.0),
+                    |best, (f, s)| if s > best.1 { (f, s) } else { best },
+                )
+                .0
+        })
+        .collect()
+}
+
+/// `Σ |p − mean|²`.
+fn spread(points: impl Iterator<Item = Vec3> + Clone) -> f64 {
+    let (sum, n) = points
+        .clone()
+        .fold((DVec3::ZERO, 0usize), |(s, n), p| (s + p.as_dvec3(), n + 1));
+    if n == 0 {
+        return 0.0;
+    }
+    let mean = sum / n as f64;
+    points.map(|p| (p.as_dvec3() - mean).length_squared()).sum()
+}
+
+/// Each joint's similarity at each sample (`[joint][sample]`), carrying
+/// its vertices' `bind` positions to the samples' as closely as any does.
+pub(crate) fn fit_joints(
+    members: &[Vec<u32>],
+    bind: &[Vec3],
+    samples: &Samples,
+) -> Vec<Vec<Similarity>> {
+    members
+        .par_iter()
+        .map(|vs| {
+            let p: Vec<DVec3> = vs.iter().map(|&v| bind[v as usize].as_dvec3()).collect();
+            let mut rotation = DQuat::IDENTITY;
+            let fits: Vec<Result<Similarity, (DVec3, DVec3)>> = (0..samples.count())
+                .map(|f| {
+                    let q = vs
+                        .iter()
+                        .map(|&v| samples.position(f, v as usize).as_dvec3());
+                    let fit = fit(&p, q, rotation, if f == 0 { 40 } else { 12 });
+                    if let Ok(s) = fit {
+                        rotation = s.rotation;
+                    }
+                    fit
+                })
+                .collect();
+            fill_degenerate(&fits)
+        })
+        .collect()
+}
+
+/// The similarity carrying `p` closest to `q` (least squares), its
+/// rotation iterated from `start`, its scale at least [`MIN_SCALE`] (the
+/// centroids still map onto each other). Without extent to turn, `q`'s
+/// centre (the point it collapsed into) and `p`'s.
+fn fit(
+    p: &[DVec3],
+    q: impl Iterator<Item = DVec3> + Clone,
+    start: DQuat,
+    iterations: usize,
+) -> Result<Similarity, (DVec3, DVec3)> {
+    if p.is_empty() {
+        return Ok(Similarity::IDENTITY);
+    }
+    let n = p.len() as f64;
+    let mp = p.iter().copied().sum::<DVec3>() / n;
+    let mq = q.clone().sum::<DVec3>() / n;
+    let mut a = DMat3::ZERO;
+    let (mut pp, mut qq) = (0.0, 0.0);
+    for (pi, qi) in p.iter().zip(q) {
+        let (dp, dq) = (*pi - mp, qi - mq);
+        a += DMat3::from_cols(dq * dp.x, dq * dp.y, dq * dp.z);
+        pp += dp.length_squared();
+        qq += dq.length_squared();
+    }
+    if pp <= 1e-18 {
+        // A joint of one point moves by translation only.
+        return Ok(Similarity {
+            scale: 1.0,
+            rotation: start,
+            translation: mq - start * mp,
+        });
+    }
+    if qq <= 1e-14 * pp {
+        return Err((mq, mp));
+    }
+    let rotation = polar_rotation(&a, start, iterations);
+    let r = DMat3::from_quat(rotation);
+    let scale = ((r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis)) / pp)
+        .max(MIN_SCALE);
+    Ok(Similarity {
+        scale,
+        rotation,
+        translation: mq - scale * (rotation * mp),
+    })
+}
+
+/// The rotation `R` maximising `tr(Rᵀ A)` (Müller et al. 2016), from
+/// `start`.
+fn polar_rotation(a: &DMat3, start: DQuat, iterations: usize) -> DQuat {
+    let mut q = start;
+    for _ in 0..iterations {
+        let r = DMat3::from_quat(q);
+        let dot = r.x_axis.dot(a.x_axis) + r.y_axis.dot(a.y_axis) + r.z_axis.dot(a.z_axis);
+        let omega =
+            (r.x_axis.cross(a.x_axis) + r.y_axis.cross(a.y_axis) + r.z_axis.cross(a.z_axis))
+                / (dot.abs() + 1e-12);
+        let w = omega.length();
+        if w < 1e-12 {
+            break;
+        }
+        q = (DQuat::from_axis_angle(omega / w, w) * q).normalize();
+    }
+    q
+}
+
+/// Samples at which a joint has no extent (collapsed into its junction)
+/// take the smallest scale at the point it collapsed into, with the
+/// nearest fitted sample's rotation: the joint shrinks to that point
+/// without spinning.
+fn fill_degenerate(fits: &[Result<Similarity, (DVec3, DVec3)>]) -> Vec<Similarity> {
+    let known: Vec<usize> = (0..fits.len()).filter(|&i| fits[i].is_ok()).collect();
+    (0..fits.len())
+        .map(|i| match fits[i] {
+            Ok(s) => s,
+            Err((centre, bind_centre)) => {
+                let rotation = known
+                    .iter()
+                    .min_by_key(|&&k| k.abs_diff(i))
+                    .and_then(|&k| fits[k].ok())
+                    .map_or(DQuat::IDENTITY, |s| s.rotation);
+                Similarity {
+                    scale: MIN_SCALE,
+                    rotation,
+                    translation: centre - MIN_SCALE * (rotation * bind_centre),
+                }
+            }
+        })
+        .collect()
+}
+
+/// A joint's pose as a glTF node stores it (relative to its parent).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Local {
+    pub(crate) translation: Vec3,
+    pub(crate) rotation: Quat,
+    pub(crate) scale: f32,
+}
+
+impl Local {
+    pub(crate) fn matrix(&self) -> Mat4 {
+        Mat4::from_scale_rotation_translation(
+            Vec3::splat(self.scale),
+            self.rotation,
+            self.translation,
+        )
+    }
+}
+
+/// The skeleton's animation: each joint's origin in the bind pose and
+/// its local pose at every sample.
+pub(crate) struct Poses {
+    /// Per joint: where its node sits in the bind pose (world).
+    pub(crate) origins: Vec<Vec3>,
+    /// `[joint][sample]`, relative to the parent joint (the root's is the
+    /// identity).
+    pub(crate) locals: Vec<Vec<Local>>,
+}
+
+/// The joints' local poses from their fits: each joint's node sits at
+/// `origins[j]` in the bind pose (the inverse bind matrix takes it back
+/// there), so its world transform at a sample is `fit ∘ translate(origin)`.
+pub(crate) fn poses(rig: &Rig, origins: Vec<Vec3>, mut fits: Vec<Vec<Similarity>>) -> Poses {
+    for joint in &mut fits {
+        for k in 1..joint.len() {
+            if joint[k].rotation.dot(joint[k - 1].rotation) < 0.0 {
+                joint[k].rotation = -joint[k].rotation;
+            }
+        }
+    }
+    let worlds: Vec<Vec<Similarity>> = fits
+        .iter()
+        .zip(&origins)
+        .map(|(joint, o)| {
+            let at = Similarity {
+                translation: o.as_dvec3(),
+                ..Similarity::IDENTITY
+            };
+            joint.iter().map(|s| s.then_after(&at)).collect()
+        })
+        .collect();
+    let locals = (0..rig.joint_count())
+        .map(|j| match rig.parents[j] {
+            None => vec![local_of(&Similarity::IDENTITY); fits[j].len()],
+            Some(0) => worlds[j].iter().map(local_of).collect(),
+            Some(p) => worlds[j]
+                .iter()
+                .zip(&worlds[p])
+                .map(|(w, pw)| local_of(&pw.inverse().then_after(w)))
+                .collect(),
+        })
+        .map(|mut l: Vec<Local>| {
+            for k in 1..l.len() {
+                if l[k].rotation.dot(l[k - 1].rotation) < 0.0 {
+                    l[k].rotation = -l[k].rotation;
+                }
+            }
+            l
+        })
+        .collect();
+    Poses { origins, locals }
+}
+
+fn local_of(s: &Similarity) -> Local {
+    Local {
+        translation: s.translation.as_vec3(),
+        rotation: s.rotation.as_quat().normalize(),
+        scale: s.scale as f32,
+    }
+}
+
+impl Poses {
+    /// Each joint's world matrix at sample `f`, composed from the stored
+    /// locals in `f32` as a player composes them, times its inverse bind
+    /// matrix: the matrix that carries a bind position to the sample.
+    pub(crate) fn skinning(&self, rig: &Rig, f: usize) -> Vec<Mat4> {
+        let mut world: Vec<Mat4> = Vec::with_capacity(rig.joint_count());
+        for j in 0..rig.joint_count() {
+            let local = self.locals[j][f].matrix();
+            let w = match rig.parents[j] {
+                None => local,
+                Some(p) => world[p] * local,
+            };
+            world.push(w);
+        }
+        world
+            .iter()
+            .zip(&self.origins)
+            .map(|(w, o)| *w * Mat4::from_translation(-*o))
+            .collect()
+    }
+}
+
+/// The residual of every sample (planar columns, like the samples): each
+/// vertex's offset from its bind position in its joint's fitted frame,
+/// and its normal's turn likewise. Zero where the joint is nearly
+/// collapsed (see [`RESIDUAL_SCALE`]).
+pub(crate) fn residuals(
+    rig: &Rig,
+    fits: &[Vec<Similarity>],
+    bind: &[Vec3],
+    bind_normals: &[Vec3],
+    samples: &Samples,
+) -> (Columns, Columns) {
+    let rows = 3 * bind.len();
+    let count = samples.count();
+    let columns: Vec<(Vec<f32>, Vec<f32>)> = (0..count)
+        .into_par_iter()
+        .map(|f| {
+            let inverses: Vec<Option<Similarity>> = fits
+                .iter()
+                .map(|j| (j[f].scale >= RESIDUAL_SCALE).then(|| j[f].inverse()))
+                .collect();
+            let n = bind.len();
+            let (mut pos, mut nrm) = (vec![0f32; rows], vec![0f32; rows]);
+            for v in 0..n {
+                let Some(inv) = &inverses[rig.vertex_joint[v] as usize] else {
+                    continue;
+                };
+                let d = inv.apply(samples.position(f, v).as_dvec3()).as_vec3() - bind[v];
+                let dn =
+                    (inv.rotation * samples.normal(f, v).as_dvec3()).as_vec3() - bind_normals[v];
+                for a in 0..3 {
+                    pos[a * n + v] = d[a];
+                    nrm[a * n + v] = dn[a];
+                }
+            }
+            (pos, nrm)
+        })
+        .collect();
+    let mut d = Columns::new(rows, count);
+    let mut nd = Columns::new(rows, count);
+    for (p, n) in columns {
+        d.data.extend(p);
+        nd.data.extend(n);
+    }
+    (d, nd)
+}
+
+#[cfg(test)]
+#[path = "skin_tests.rs"]
+mod tests;

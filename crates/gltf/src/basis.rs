@@ -101,9 +101,6 @@ pub const ERROR_BUDGET: f32 = 0.005;
 /// Most residual morph targets of a skinned animation: engines that play
 /// skeletons want few, and each costs every vertex's bytes.
 pub const MAX_SKIN_TARGETS: usize = 4;
-/// How much above the error of every residual target a skinned
-/// animation short of its budget accepts, to carry fewer targets.
-const SKIN_TARGET_SLACK: f32 = 1.1;
 /// Most groups of leaves that change material at one time.
 pub const MAX_LEAF_GROUPS: usize = 16;
 /// Bands in which the bark changes, from the ground up.
@@ -497,7 +494,7 @@ impl BasisGlbBuilder {
         } else {
             ERROR_BUDGET
         };
-        let (targets, mut report) = self.fit(budget);
+        let (targets, mut report) = self.fit(budget, skin.as_ref().map(|s| (s, &base)));
         if let Some(skin) = &skin {
             let error = skin.max_error(&base, &targets);
             report.max_error = error / report.height;
@@ -619,7 +616,13 @@ impl BasisGlbBuilder {
     /// The principal displacements, cut to the fewest that keep within
     /// `budget` (a fraction of the height), in the file's encoding, and
     /// the error of what is written.
-    fn fit(&mut self, budget: f32) -> (Targets, BasisReport) {
+    /// A skinned animation's count is chosen by the error a player shows
+    /// (`skin`, over the bind pose `base`).
+    fn fit(
+        &mut self,
+        budget: f32,
+        skin: Option<(&skinning::Skin, &BasePose)>,
+    ) -> (Targets, BasisReport) {
         let most = if self.skinned {
             MAX_SKIN_TARGETS
         } else {
@@ -628,21 +631,22 @@ impl BasisGlbBuilder {
         let principal = motion::principal(&self.displacements, &self.normal_changes, most);
         let height = self.heights.max(1e-6);
         let budget = budget * height;
-        let (mut k, mut error) = motion::fewest_within(
-            &self.displacements,
-            &principal.positions,
-            &principal.weights,
-            principal.count,
-            budget,
-        );
-        if self.skinned && error > budget {
-            (k, error) = self.fewest_that_help(&principal);
-        }
+        let (k, error) = match skin {
+            None => motion::fewest_within(
+                &self.displacements,
+                &principal.positions,
+                &principal.weights,
+                principal.count,
+                budget,
+            ),
+            Some((skin, base)) => skin.fewest_that_help(base, &principal, budget),
+        };
         let targets = Targets::encode(&principal, k, self.grid);
         // Float targets are the basis itself, offset and scaled (rounding
         // apart); quantised ones are measured again as a player reads
-        // them back.
-        let error = if self.grid.is_some() {
+        // them back (a skinned animation's by its caller, through the
+        // skeleton).
+        let error = if self.grid.is_some() && skin.is_none() {
             let count = targets.stored.len();
             let all = motion::Pass {
                 count,
@@ -670,30 +674,6 @@ impl BasisGlbBuilder {
             joints: 0,
         };
         (targets, report)
-    }
-
-    /// A skinned animation's residual targets when none reach the budget:
-    /// the fewest within [`SKIN_TARGET_SLACK`] of what all of them reach.
-    /// Targets spanning what the skeleton misses cost every vertex's
-    /// bytes, so those that barely help are left out.
-    fn fewest_that_help(&self, principal: &motion::Principal) -> (usize, f32) {
-        let all = motion::Pass {
-            count: principal.count,
-            upto: principal.count,
-            every: 1,
-        };
-        let errors = motion::max_errors(
-            &self.displacements,
-            &principal.positions,
-            &principal.weights,
-            all,
-        );
-        let best = errors.last().copied().unwrap_or(0.0);
-        let k = errors
-            .iter()
-            .position(|&e| e <= best * SKIN_TARGET_SLACK)
-            .unwrap_or(principal.count);
-        (k, errors[k])
     }
 
     /// Materials: the bark looks of the first and (when it differs) the
@@ -866,9 +846,7 @@ impl Targets {
             d += match t {
                 StoredTarget::Float(p, _) => p[v] * self.weights[f * count + k],
                 StoredTarget::Quantised(..) => {
-                    let c = self.read_back.column(k);
-                    let n = c.len() / 3;
-                    Vec3::new(c[v], c[n + v], c[2 * n + v]) * self.weights_read_back[f * count + k]
+                    self.read_back.vertex(k, v) * self.weights_read_back[f * count + k]
                 }
             };
         }

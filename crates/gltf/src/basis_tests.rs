@@ -594,3 +594,57 @@ fn threejs_plays_the_animation_as_written_skinned() {
         crate::test_support::check_with_threejs(&name, &glb, &expected);
     }
 }
+
+/// The largest distance, over every key and every always-drawn node's
+/// checked vertices, between what a player reading the file shows
+/// ([`Parsed::skinned`], with or without the morph targets) and the exact
+/// frames (`exact[k]`, mapped through the float basis file `float`).
+fn skinned_played_error(
+    parsed: &Parsed,
+    float: &Parsed,
+    exact: &[[Vec<Vec3>; 2]],
+    with_targets: bool,
+) -> f32 {
+    let mut worst = 0f32;
+    for (name, m, p) in primitives(parsed) {
+        let names = parsed.mesh_of(&name)["extras"]["targetNames"].as_array();
+        if p != 0 || names.is_some_and(|n| n.iter().any(|t| t == "hidden")) {
+            continue;
+        }
+        let map = vertex_map(float, (&name, m, 0), exact);
+        for (k, frame) in exact.iter().enumerate() {
+            let played = parsed.skinned(&name, k, with_targets);
+            for (v, &i) in map.iter().enumerate() {
+                worst = worst.max(played[v].distance(frame[m][i]));
+            }
+        }
+    }
+    worst
+}
+
+/// The error a skinned animation reports is what a player reading the
+/// file shows, in every encoding.
+#[test]
+fn a_player_reading_the_skinned_file_sees_the_error_reported() {
+    let sway = sway(7);
+    let base = AnimatedOptions::default();
+    let exact: Vec<[Vec<Vec3>; 2]> = (0..sway.len()).map(|k| exact(&sway, &base, k)).collect();
+    let float = Parsed::new(&build(&sway, &base).0);
+    for encoding in [
+        AnimatedEncoding::Float,
+        AnimatedEncoding::Quantized,
+        AnimatedEncoding::Meshopt,
+    ] {
+        let (glb, report) = build_skinned(&sway, &base.clone().with_encoding(encoding));
+        let played = skinned_played_error(&Parsed::new(&glb), &float, &exact, true);
+        let reported = report.max_error * report.height;
+        assert!(
+            played <= reported * 1.001 + 1e-5,
+            "{encoding:?}: played {played}, reported {reported}"
+        );
+        assert!(
+            played >= reported * 0.5,
+            "{encoding:?}: played {played}, reported {reported}"
+        );
+    }
+}

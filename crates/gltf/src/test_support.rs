@@ -76,6 +76,7 @@ impl Parsed {
             "VEC2" => 2,
             "VEC3" => 3,
             "VEC4" => 4,
+            "MAT4" => 16,
             t => panic!("type {t}"),
         };
         let count = a["count"].as_u64().unwrap() as usize;
@@ -205,6 +206,87 @@ impl Parsed {
             )
         });
         p.iter().map(|&v| translation + v * scale).collect()
+    }
+
+    /// What a player shows of the skinned node `name` (first primitive,
+    /// one joint per vertex) at animation key `k`, every channel keyed at
+    /// the same sample times: the joints' translation, rotation and scale
+    /// at that key composed down the node hierarchy, times their inverse
+    /// bind matrices, applied to the positions morphed by the node's
+    /// weights at that key (or by none).
+    pub(crate) fn skinned(&self, name: &str, k: usize, with_targets: bool) -> Vec<Vec3> {
+        let nodes = self.json["nodes"].as_array().unwrap();
+        let index = |n: &Value| nodes.iter().position(|m| m == n).unwrap();
+        let at = |node: usize, path: &str, n: usize| -> Option<Vec<f32>> {
+            let animation = &self.json["animations"][0];
+            let channel = animation["channels"]
+                .as_array()?
+                .iter()
+                .find(|c| c["target"]["node"] == node && c["target"]["path"] == path)?;
+            let sampler = &animation["samplers"][channel["sampler"].as_u64()? as usize];
+            let (values, _) = self.floats(sampler["output"].as_u64()? as usize);
+            Some(values[k * n..(k + 1) * n].to_vec())
+        };
+        let mut parent = vec![None; nodes.len()];
+        for (i, n) in nodes.iter().enumerate() {
+            for c in n["children"].as_array().into_iter().flatten() {
+                parent[c.as_u64().unwrap() as usize] = Some(i);
+            }
+        }
+        let local = |i: usize| {
+            let get = |path: &str, n: usize, default: &[f32]| {
+                at(i, path, n).unwrap_or_else(|| {
+                    nodes[i][path].as_array().map_or(default.to_vec(), |v| {
+                        v.iter().map(|x| x.as_f64().unwrap() as f32).collect()
+                    })
+                })
+            };
+            let t = get("translation", 3, &[0.0; 3]);
+            let r = get("rotation", 4, &[0.0, 0.0, 0.0, 1.0]);
+            let s = get("scale", 3, &[1.0; 3]);
+            glam::Mat4::from_scale_rotation_translation(
+                Vec3::from_slice(&s),
+                glam::Quat::from_slice(&r),
+                Vec3::from_slice(&t),
+            )
+        };
+        let world = |mut i: usize| {
+            let mut m = local(i);
+            while let Some(p) = parent[i] {
+                m = local(p) * m;
+                i = p;
+            }
+            m
+        };
+        let skin = &self.json["skins"][0];
+        let joints: Vec<usize> = skin["joints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j.as_u64().unwrap() as usize)
+            .collect();
+        let (ibm, _) = self.floats(skin["inverseBindMatrices"].as_u64().unwrap() as usize);
+        let skinning: Vec<glam::Mat4> = joints
+            .iter()
+            .enumerate()
+            .map(|(j, &node)| world(node) * glam::Mat4::from_cols_slice(&ibm[16 * j..16 * (j + 1)]))
+            .collect();
+        let node = index(self.node(name));
+        let targets = self.mesh_of(name)["primitives"][0]["targets"]
+            .as_array()
+            .map_or(0, Vec::len);
+        let weights = match with_targets {
+            true => at(node, "weights", targets).unwrap_or_default(),
+            false => Vec::new(),
+        };
+        let prim = &self.mesh_of(name)["primitives"][0];
+        let (vertex_joints, _) =
+            self.floats(prim["attributes"]["JOINTS_0"].as_u64().unwrap() as usize);
+        self.morphed_attribute(name, "POSITION", &weights)
+            .iter()
+            .enumerate()
+            .map(|(v, &p)| skinning[vertex_joints[4 * v] as usize].transform_point3(p))
+            .collect()
     }
 
     /// Unit normals of the node's mesh morphed by `weights`.

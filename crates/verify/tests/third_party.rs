@@ -152,7 +152,7 @@ fn third_party_trees_meet_the_acceptance_figures() {
     let mut table = String::new();
     writeln!(
         table,
-        "| tree | family | branches | leaves | import p95 wood→bark / bark→wood (% h) | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | second morph → | max fl/fb | endpoint p95 (% h) | {} |",
+        "| tree | family | branches | leaves | import p95 wood→bark / bark→wood (% h) | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | skinned error (% h) | second morph → | max fl/fb | endpoint p95 (% h) | skinned error (% h) | {} |",
         SHAPES.join(" IoU before → after (max fl/fb) | ")
     )
     .unwrap();
@@ -298,7 +298,7 @@ fn partner(trees: &[Loaded], k: usize, shift: usize) -> Option<&Loaded> {
 /// endpoints against the inputs.
 fn morph_cell(source: &Loaded, target: Option<&Loaded>, failures: &mut Failures) -> String {
     let Some(target) = target else {
-        return " — | — | — |".into();
+        return " — | — | — | — |".into();
     };
     let label = format!("{} → {}", source.name, target.name);
     let plan = MorphPlan::new(
@@ -327,7 +327,60 @@ fn morph_cell(source: &Loaded, target: Option<&Loaded>, failures: &mut Failures)
             format!("{label}: {which} frame's p95 distance to its input is {p:.2} % of height")
         });
     }
-    format!(" {} | {fl}/{fb} | {start:.3} / {end:.3} |", target.name)
+    let skin = skinned_error(plan.topology(), &mut morpher);
+    failures.check(
+        format!("{label} skinned"),
+        skin <= MAX_SKINNED_ERROR,
+        || {
+            format!(
+                "{label}: the skinned animation's largest vertex error is {:.1} % of height",
+                100.0 * skin
+            )
+        },
+    );
+    format!(
+        " {} | {fl}/{fb} | {start:.3} / {end:.3} | {:.1} % |",
+        target.name,
+        100.0 * skin
+    )
+}
+
+/// The largest skinned-animation error (fraction of height) accepted on
+/// a morph between trees of the two families. A regression bound, not
+/// the 1 % aim: 256 rigid joints cannot follow such a morph (6-30 %
+/// measured on the CI set); before residual targets were chosen by the
+/// error a player shows, ash-large → mt-broadleaf reached 41 % (19 %
+/// since).
+const MAX_SKINNED_ERROR: f32 = 0.35;
+
+/// The error the default skinned animation (256 joints, meshopt) of the
+/// morph's 60 frames reports: measured as a player composes the file.
+fn skinned_error(topology: &FrameTopology, morpher: &mut Morpher) -> f32 {
+    let frames: Vec<Frame> = (0..60)
+        .map(|i| {
+            let mut f = Frame::default();
+            morpher.morph(i as f32 / 59.0, &mut f);
+            f
+        })
+        .collect();
+    let radii = treemorph_gltf::frames::max_radii(&frames);
+    let bounds = frames.iter().fold(treemorph_tree::Aabb::EMPTY, |b, f| {
+        b.union(
+            treemorph_tree::Aabb::of_points(f.points())
+                .inflated(radii.iter().copied().fold(0.0, f32::max)),
+        )
+    });
+    let options = treemorph_gltf::animated::AnimatedOptions::default()
+        .with_keyframes(frames.len())
+        .with_encoding(treemorph_gltf::animated::AnimatedEncoding::Meshopt);
+    let mut builder =
+        treemorph_gltf::basis::BasisGlbBuilder::new(topology, &radii, bounds, &options)
+            .expect("a skinned animation of a plan's topology")
+            .skinned();
+    for f in &frames {
+        builder.push(f).expect("a morph's frame");
+    }
+    builder.finish().expect("the skinned animation").1.max_error
 }
 
 /// The larger of the directed 95th-percentile distances between the

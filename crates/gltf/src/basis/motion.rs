@@ -60,6 +60,13 @@ impl Columns {
     pub(crate) fn column(&self, j: usize) -> &[f32] {
         &self.data[j * self.rows..(j + 1) * self.rows]
     }
+
+    /// Vertex `v` of column `j`.
+    pub(crate) fn vertex(&self, j: usize, v: usize) -> glam::Vec3 {
+        let c = self.column(j);
+        let n = self.rows / 3;
+        glam::Vec3::new(c[v], c[n + v], c[2 * n + v])
+    }
 }
 
 /// The principal displacements of a sequence.

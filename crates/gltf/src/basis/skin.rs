@@ -355,18 +355,12 @@ impl Samples<'_> {
     }
 
     pub(crate) fn position(&self, f: usize, v: usize) -> Vec3 {
-        self.base[v] + planar(self.displacements.column(f), v)
+        self.base[v] + self.displacements.vertex(f, v)
     }
 
     pub(crate) fn normal(&self, f: usize, v: usize) -> Vec3 {
-        self.base_normals[v] + planar(self.normal_changes.column(f), v)
+        self.base_normals[v] + self.normal_changes.vertex(f, v)
     }
-}
-
-/// Vertex `v` of a planar column.
-fn planar(column: &[f32], v: usize) -> Vec3 {
-    let n = column.len() / 3;
-    Vec3::new(column[v], column[n + v], column[2 * n + v])
 }
 
 /// Each joint's bind sample: where its vertices are spread widest.

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 use treemorph_tree::NodeId;
 
-use super::motion::Columns;
+use super::motion::{Columns, Principal};
 use super::skin::{self, Poses, Rig, Samples};
 use super::{BasePose, StoredTarget, Targets, quantised_target};
 use crate::animated::{Attr, Writer, f32_bytes, quantise, quantise_normal};
@@ -29,6 +29,10 @@ use crate::gl::FLOAT;
 /// of the tree's height: what a few hundred bones and a few residual
 /// targets reach on a morph between two different trees.
 pub const SKIN_ERROR_BUDGET: f32 = 0.01;
+
+/// How much above the smallest error of any residual target count a
+/// skinned animation short of its budget accepts, to carry fewer targets.
+const SKIN_TARGET_SLACK: f32 = 1.1;
 
 /// Seconds before a swap at which the `hidden` weight still has its old
 /// value.
@@ -223,30 +227,80 @@ impl Skin {
         &self.first
     }
 
-    /// The largest distance of any vertex of any sample, as a player
-    /// shows it (locals composed in `f32`, targets as stored), from the
-    /// sample as meshed.
-    pub(crate) fn max_error(&self, base: &BasePose, targets: &Targets) -> f32 {
-        let count = self.displacements.count();
-        let samples = Samples {
+    /// The samples as meshed.
+    fn samples(&self) -> Samples<'_> {
+        Samples {
             base: &self.first,
             base_normals: &self.first_normals,
             displacements: &self.displacements,
             normal_changes: &self.normal_changes,
-        };
-        (0..count)
+        }
+    }
+
+    /// The largest distance of any vertex of any sample, as a player
+    /// shows it (locals composed in `f32`, targets as stored), from the
+    /// sample as meshed.
+    pub(crate) fn max_error(&self, base: &BasePose, targets: &Targets) -> f32 {
+        self.worst(base, 1, |f, v, _| targets.offset_at(f, v))[1]
+    }
+
+    /// How many of the residual targets `principal` to keep, and the
+    /// error a player then shows: the fewest within `budget` (metres),
+    /// else the fewest within [`SKIN_TARGET_SLACK`] of the best count's.
+    /// Measured through the skeleton, not in the joints' frames: a
+    /// residual divided by a small joint scale can span a target that
+    /// moves other samples' vertices far more than it helps.
+    pub(crate) fn fewest_that_help(
+        &self,
+        base: &BasePose,
+        principal: &Principal,
+        budget: f32,
+    ) -> (usize, f32) {
+        let count = principal.count;
+        let errors = self.worst(base, count, |f, v, k| {
+            principal.positions.vertex(k, v) * principal.weights[f * count + k]
+        });
+        let best = errors.iter().copied().fold(f32::INFINITY, f32::min);
+        let k = errors
+            .iter()
+            .position(|&e| e <= budget)
+            .or_else(|| errors.iter().position(|&e| e <= best * SKIN_TARGET_SLACK))
+            .unwrap_or(count);
+        (k, errors[k])
+    }
+
+    /// For `K = 0 … count`, the largest distance of any vertex of any
+    /// sample as the skeleton shows it with the bind pose plus the first
+    /// `K` offsets `offset(sample, vertex, k)`.
+    fn worst(
+        &self,
+        base: &BasePose,
+        count: usize,
+        offset: impl Fn(usize, usize, usize) -> Vec3 + Sync,
+    ) -> Vec<f32> {
+        let samples = self.samples();
+        (0..samples.count())
             .into_par_iter()
             .map(|f| {
                 let mats = self.poses.skinning(&self.rig, f);
-                (0..base.positions.len())
-                    .map(|v| {
-                        let bound = base.positions[v] + targets.offset_at(f, v);
-                        let m = mats[self.rig.vertex_joint[v] as usize];
-                        m.transform_point3(bound).distance(samples.position(f, v))
-                    })
-                    .fold(0f32, f32::max)
+                let mut worst = vec![0f32; count + 1];
+                for v in 0..base.positions.len() {
+                    let m = mats[self.rig.vertex_joint[v] as usize];
+                    let exact = samples.position(f, v);
+                    let mut bound = base.positions[v];
+                    for (k, w) in worst.iter_mut().enumerate() {
+                        if k > 0 {
+                            bound += offset(f, v, k - 1);
+                        }
+                        *w = w.max(m.transform_point3(bound).distance(exact));
+                    }
+                }
+                worst
             })
-            .reduce(|| 0.0, f32::max)
+            .reduce(
+                || vec![0f32; count + 1],
+                |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
+            )
     }
 
     /// Writes the joint nodes, their inverse bind matrices (which undo the

@@ -16,8 +16,11 @@
 #   a third generates 2 trees, posts 3 morph jobs (each with an
 #   Idempotency-Key; a post whose answer was lost is retried with the same
 #   key after the restart), cancels a random job half of the time and polls
-#   the job list; after a random 0.3-3 s the server gets SIGKILL. Every 201
-#   or 202 the clients received is recorded.
+#   the job list; a fourth renders frames at random instants of succeeded
+#   jobs (`frame.glb?t=`, 100 ms each), one after another; a fifth deletes
+#   one ended job within 10 ms before the kill; after a random 0.3-3 s the
+#   server gets SIGKILL. Every 201, 202 and 204 the clients received is
+#   recorded.
 #   Then `PRAGMA integrity_check` on the crashed database (python3 sqlite3),
 #   one more start (slow:10, to drain the backlog quickly), unacknowledged
 #   job posts retried, and a wait until every job is terminal (90 s).
@@ -27,6 +30,10 @@
 #     post gets the id of its first acknowledgement, if any (one job post
 #     per life is timed to race the kill, so some answers are lost after
 #     the commit and the retry must find that job again);
+#   - deletes hold: a job whose DELETE was answered 204 is not listed and
+#     answers 404 (its outputs and instants too); a delete cut by the kill
+#     either happened or the job is listed and verified like any other;
+#     every instant rendered is the test runner's bytes for that instant;
 #   - every job terminal (succeeded, failed or cancelled) and for a reason
 #     the test can explain: cancelled only if we asked; an acknowledged
 #     cancellation of a queued job stays cancelled, of a running one ends
@@ -53,8 +60,9 @@
 #   - the last server stops cleanly on SIGTERM; integrity_check is `ok`
 #     again; no job names a missing tree or keeps a lease; the database's
 #     row counts equal the API's lists; the server log has no panic;
-#   - coverage: at least 5 kills hit an upload in flight and at least 5 job
-#     attempts were cut by a kill.
+#   - coverage: at least 5 kills hit an upload in flight, at least 5 job
+#     attempts were cut by a kill, at least 5 kills hit a render in flight
+#     and at least 5 deletes racing a kill were acknowledged.
 # Prints a summary (kills, acknowledged jobs and uploads, final statuses).
 #
 # Environment: CRASH_SAFETY_SEED (repeat a run's random choices; the seed

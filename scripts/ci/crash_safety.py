@@ -3,7 +3,8 @@
 
 kill -9s a `treemorph serve` (SQLite and local blobs in one data directory,
 the test runner) again and again while clients upload trees, generate trees,
-post jobs and cancel jobs; then restarts it once more, lets every job finish
+post jobs, cancel jobs, render frames at instants of succeeded jobs and
+delete ended jobs (a delete timed to race each kill); then restarts it once more, lets every job finish
 and checks that nothing acknowledged was lost, that everything served is
 complete and that the database is intact. Standard library only. Exits 1
 with a list of the failed assertions.
@@ -38,6 +39,8 @@ UPLOAD_CHUNK_PAUSE_S = 0.01  # about 0.5-0.7 s per upload body
 FINISH_DEADLINE_S = 90
 MIN_KILLS_DURING_UPLOAD = 5
 MIN_ATTEMPTS_CUT = 5
+MIN_KILLS_DURING_RENDER = 5
+MIN_DELETES_ACKED = 5
 TERMINAL = {"succeeded", "failed", "cancelled"}
 MAX_ATTEMPTS = 3  # the server's default --max-attempts
 
@@ -186,6 +189,13 @@ class Ledger:
         self.uploads_acked = 0
         self.generated_acked = 0
         self.upload_states = {}  # uploader -> "idle" | "sending" | "processing"
+        self.deletes = {}  # job id -> "deleted" (204) | "unacknowledged"
+        self.rendering = False  # a frame.glb?t= request in flight
+        self.renders_ok = 0
+
+    def deleting(self):
+        with self.lock:
+            return set(self.deletes)
 
     def tree_ids(self):
         with self.lock:
@@ -282,7 +292,8 @@ def driver(life, base, ledger, stop, rng, kill_at):
             post_job(base, ledger, key)
             stop.wait(rng.uniform(0, 0.2))
         if rng.random() < 0.5:
-            ids = ledger.acked_job_ids()
+            gone = ledger.deleting()
+            ids = [j for j in ledger.acked_job_ids() if j not in gone]
             victim = rng.choice(ids)
             with ledger.lock:
                 ledger.cancels.setdefault(victim, "unacknowledged")
@@ -318,6 +329,84 @@ def driver(life, base, ledger, stop, rng, kill_at):
             stop.wait(0.2)
     except (OSError, http.client.HTTPException):
         return  # the server is gone
+
+
+def instant_glb(t):
+    """What the test runner renders at instant `t` (src/jobs/testing.rs)."""
+    return b"glTF" + struct.pack("<f", t) + b"instant"
+
+
+def renderer(base, ledger, stop, rng):
+    """Asks for frames at instants of succeeded jobs, one after another
+    (each takes a frame's time to render), until the server dies: most
+    kills land while one renders. Instants are multiples of 1/1024, exact
+    in binary, so the expected bytes do not depend on decimal rounding."""
+    try:
+        while not stop.is_set():
+            r = request(base, "GET", "/v1/jobs?status=succeeded&limit=100")
+            gone = ledger.deleting()
+            ids = [j["id"] for j in r.json()["items"] if j["id"] not in gone] if r.status == 200 else []
+            if not ids:
+                stop.wait(0.2)
+                continue
+            jid, t = rng.choice(ids), rng.randrange(1025) / 1024
+            with ledger.lock:
+                ledger.rendering = True
+            r = request(base, "GET", f"/v1/jobs/{jid}/frame.glb?t={t}")
+            with ledger.lock:
+                ledger.rendering = False
+            if r.status == 404 and jid in ledger.deleting():
+                continue
+            if check(r.status == 200 and r.body == instant_glb(t),
+                     f"GET /v1/jobs/{jid}/frame.glb?t={t} answered {r.status}: {r.body[:60]!r}"):
+                with ledger.lock:
+                    ledger.renders_ok += 1
+    except (OSError, http.client.HTTPException):
+        with ledger.lock:
+            ledger.rendering = False
+
+
+def deleter(base, ledger, stop, rng, kill_at):
+    """Deletes one ended job, sent within 10 ms before the kill, so some
+    deletes are cut between their row and their blobs, or answered to a
+    client that never hears it."""
+    try:
+        stop.wait(max(0.0, kill_at - 0.3 - time.monotonic()))
+        r = request(base, "GET", "/v1/jobs?limit=100")
+        gone = ledger.deleting()
+        ended = [j["id"] for j in r.json()["items"]
+                 if j["status"] in TERMINAL and j["id"] not in gone] if r.status == 200 else []
+        if not ended or stop.is_set():
+            return
+        jid = rng.choice(ended)
+        time.sleep(max(0.0, kill_at - rng.uniform(0, 0.01) - time.monotonic()))
+        with ledger.lock:
+            ledger.deletes[jid] = "unacknowledged"
+        r = request(base, "DELETE", f"/v1/jobs/{jid}")
+        if r.status == 204:
+            with ledger.lock:
+                ledger.deletes[jid] = "deleted"
+        else:
+            check(False, f"DELETE of ended job {jid} answered {r.status}: {r.body[:200]!r}")
+    except (OSError, http.client.HTTPException):
+        return  # the server is gone; the delete stays unacknowledged
+
+
+def check_deleted(base, ledger, jobs_by_id):
+    """A delete the server acknowledged holds after every crash: the job
+    is gone from the list and answers 404, outputs included. A delete cut
+    by a kill either happened or not; a job still listed is verified
+    like any other. Returns how many deleted jobs are gone."""
+    gone = 0
+    for jid, state in ledger.deletes.items():
+        if jid in jobs_by_id:
+            check(state == "unacknowledged", f"job {jid}: its delete was acknowledged, yet it is listed")
+            continue
+        gone += 1
+        for suffix in ["", "/metrics.json", "/frame.glb?t=0.5", "/frames/0.glb"]:
+            r = request(base, "GET", f"/v1/jobs/{jid}{suffix}")
+            check(r.status == 404, f"deleted job {jid}: GET /v1/jobs/{jid}{suffix} answered {r.status}")
+    return gone
 
 
 # --- checks -------------------------------------------------------------------
@@ -518,7 +607,7 @@ def delete_ended_jobs(base, data_dir, jobs):
     if check(done, "no job succeeded"):
         jid = done[0]["id"]
         r = request(base, "GET", f"/v1/jobs/{jid}/frame.glb?t=0.375")
-        want = b"glTF" + struct.pack("<f", 0.375) + b"instant"
+        want = instant_glb(0.375)
         check(r.status == 200 and r.body == want,
               f"GET /v1/jobs/{jid}/frame.glb?t=0.375 answered {r.status}: {r.body[:60]!r}, want {want!r}")
     deleted = []
@@ -673,11 +762,16 @@ def main():
             kill_at = time.monotonic() + delay
             threads.append(threading.Thread(target=driver, args=(life, base, ledger, stop, random.Random(rng.random()),
                                                                  kill_at), daemon=True))
+            threads.append(threading.Thread(target=renderer, args=(base, ledger, stop, random.Random(rng.random())),
+                                            daemon=True))
+            threads.append(threading.Thread(target=deleter, args=(base, ledger, stop, random.Random(rng.random()),
+                                                                  kill_at), daemon=True))
             for t in threads:
                 t.start()
             time.sleep(max(0.0, kill_at - time.monotonic()))
             with ledger.lock:
                 states = dict(ledger.upload_states)
+                rendering = ledger.rendering
             server.kill9()
             stop.set()
             for t in threads:
@@ -685,7 +779,7 @@ def main():
                 check(not t.is_alive(), "a client thread hung after the kill")
             sending = sum(1 for s in states.values() if s == "sending")
             processing = sum(1 for s in states.values() if s == "processing")
-            kills.append({"after": delay, "sending": sending, "processing": processing})
+            kills.append({"after": delay, "sending": sending, "processing": processing, "rendering": rendering})
             log(f"kill {life:2}: after {delay:.2f} s; uploads in flight: {sending} sending, "
                 f"{processing} being processed; acknowledged so far: {len(ledger.acked_job_ids())} jobs, "
                 f"{ledger.uploads_acked} uploads, {ledger.generated_acked} generated trees")
@@ -716,11 +810,13 @@ def main():
         lost_trees = [t for t in ledger.trees if t not in tree_ids]
         check(not lost_trees, f"{len(lost_trees)} acknowledged trees are gone: {lost_trees[:5]}")
         acked_jobs = ledger.acked_job_ids()
-        lost_jobs = [j for j in acked_jobs if j not in jobs_by_id]
+        lost_jobs = [j for j in acked_jobs if j not in jobs_by_id and j not in ledger.deletes]
         check(not lost_jobs, f"{len(lost_jobs)} acknowledged jobs are gone: {lost_jobs[:5]}")
         check(len(ledger.pending_keys()) == 0, f"jobs never acknowledged: {ledger.pending_keys()[:5]}")
-        check(len(jobs_by_id) == len(ledger.jobs),
-              f"{len(jobs_by_id)} jobs listed for {len(ledger.jobs)} idempotency keys (a duplicate or phantom job)")
+        deleted_gone = check_deleted(base, ledger, jobs_by_id)
+        check(len(jobs_by_id) + deleted_gone == len(ledger.jobs),
+              f"{len(jobs_by_id)} jobs listed and {deleted_gone} deleted for {len(ledger.jobs)} idempotency keys "
+              f"(a duplicate or phantom job)")
         for tid in lost_trees:
             r = request(base, "GET", f"/v1/trees/{tid}")
             check(False, f"acknowledged tree {tid}: GET answered {r.status}")
@@ -800,6 +896,12 @@ def main():
         check(during_upload >= MIN_KILLS_DURING_UPLOAD,
               f"only {during_upload} kills hit an upload in flight (want >= {MIN_KILLS_DURING_UPLOAD})")
         check(cut >= MIN_ATTEMPTS_CUT, f"only {cut} job attempts were cut by a kill (want >= {MIN_ATTEMPTS_CUT})")
+        during_render = sum(1 for k in kills if k["rendering"])
+        check(during_render >= MIN_KILLS_DURING_RENDER,
+              f"only {during_render} kills hit a render in flight (want >= {MIN_KILLS_DURING_RENDER})")
+        deletes_acked = sum(1 for d in ledger.deletes.values() if d == "deleted")
+        check(deletes_acked >= MIN_DELETES_ACKED,
+              f"only {deletes_acked} deletes racing a kill were acknowledged (want >= {MIN_DELETES_ACKED})")
 
         statuses = {}
         for j in jobs:
@@ -815,6 +917,9 @@ def main():
             ("kills during an upload", f"{during_upload} ({sum(k['sending'] for k in kills)} bodies being sent, "
                                        f"{sum(k['processing'] for k in kills)} being processed)"),
             ("job attempts cut by a kill", str(cut)),
+            ("kills during a render", f"{during_render} ({ledger.renders_ok} instants rendered and checked)"),
+            ("deletes racing a kill", f"{len(ledger.deletes)}: {deletes_acked} acknowledged, "
+                                      f"{len(ledger.deletes) - deletes_acked} cut, of which {deleted_gone} jobs are gone"),
             ("jobs acknowledged", f"{len(acked_jobs)} ({sum(1 for j in ledger.jobs.values() if j['tries'] > 1)} after a retry with their "
                                   f"Idempotency-Key, {sum(1 for j in ledger.jobs.values() if j.get('deduplicated'))} of them "
                                   f"committed before the kill)"),

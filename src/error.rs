@@ -11,7 +11,7 @@ use axum::response::{IntoResponse, Response};
 use treemorph_api::{ErrorBody, ErrorCode};
 
 /// An API error.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct ApiError {
     /// The code (decides the status).
     pub code: ErrorCode,

@@ -18,7 +18,7 @@
 #   key after the restart), cancels a random job half of the time and polls
 #   the job list; a fourth renders frames at random instants of succeeded
 #   jobs (`frame.glb?t=`, 100 ms each), one after another; a fifth deletes
-#   one ended job within 10 ms before the kill; after a random 0.3-3 s the
+#   one ended job within 30 ms before the kill; after a random 0.3-3 s the
 #   server gets SIGKILL. Every 201, 202 and 204 the clients received is
 #   recorded.
 #   Then `PRAGMA integrity_check` on the crashed database (python3 sqlite3),
@@ -62,7 +62,7 @@
 #     row counts equal the API's lists; the server log has no panic;
 #   - coverage: at least 5 kills hit an upload in flight, at least 5 job
 #     attempts were cut by a kill, at least 5 kills hit a render in flight
-#     and at least 5 deletes racing a kill were acknowledged.
+#     and at least 5 deletes racing a kill took effect.
 # Prints a summary (kills, acknowledged jobs and uploads, final statuses).
 #
 # Environment: CRASH_SAFETY_SEED (repeat a run's random choices; the seed

@@ -503,6 +503,9 @@ pub async fn resampled(
 ) -> Result<Response, ApiError> {
     let prefix = succeeded_prefix(row, "output")?;
     let (key, spec) = resample::prepare(state, row, &prefix, what)?;
+    if matches!(what, resample::Resample::Frames(_)) && super::streamed::applies(headers, &key) {
+        return resample::streamed(state, row, &key, spec, headers).await;
+    }
     let render = resample::file(state, row, &key, spec, what);
     serve_rendered(headers, &key, content_type, render).await
 }

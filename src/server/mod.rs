@@ -39,6 +39,7 @@ pub mod renders;
 pub mod resample;
 pub mod slow_body;
 pub mod stream;
+pub mod streamed;
 pub mod trees;
 pub mod web;
 

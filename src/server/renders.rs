@@ -22,13 +22,21 @@
 //!   concurrent requests for one key still render once.
 //! - Entries of a deleted job stay until evicted but are never served: the
 //!   route checks the job's row before it looks here.
+//! - **Renders sent as they are made** ([`super::streamed`]) are tracked
+//!   here too, by key, while they run: later requests join them, and the
+//!   whole-file path waits for them rather than render the same key again
+//!   (one whole-file render that has just begun can still race a first
+//!   streamed request for the same key; both then render).
 
+use std::collections::HashMap;
 use std::future::Future;
+use std::sync::{Arc, Mutex};
 
 use bytes::Bytes;
 use quick_cache::Weighter;
 use quick_cache::sync::Cache;
 
+use super::streamed::Live;
 use crate::error::ApiError;
 use crate::store::renders::RenderStore;
 
@@ -50,6 +58,8 @@ pub struct RenderCache {
     entries: Cache<String, Bytes, ByLen>,
     budget: u64,
     store: Option<RenderStore>,
+    /// Renders being sent as they are made, by key.
+    live: Mutex<HashMap<String, Arc<Live>>>,
 }
 
 impl std::fmt::Debug for RenderCache {
@@ -71,6 +81,7 @@ impl RenderCache {
             entries: Cache::with_weighter(items, budget.max(1), ByLen),
             budget,
             store: None,
+            live: Mutex::default(),
         }
     }
 
@@ -88,6 +99,7 @@ impl RenderCache {
         render: impl Future<Output = Result<Vec<u8>, ApiError>>,
     ) -> Result<Bytes, ApiError> {
         let store = self.store.clone();
+        let live = self.live_of(key);
         self.entries
             .get_or_insert_async(key, async {
                 if let Some(stored) = match &store {
@@ -96,15 +108,68 @@ impl RenderCache {
                 } {
                     return Ok(stored);
                 }
-                let bytes = Bytes::from(render.await?);
-                if let Some(store) = store {
-                    // In the background: the answer does not wait for
-                    // the write.
-                    let (key, bytes) = (key.to_owned(), bytes.clone());
-                    tokio::spawn(async move { store.save(&key, bytes).await });
+                if let Some(live) = live
+                    && let Ok(bytes) = live.finished().await
+                {
+                    return Ok(bytes);
                 }
+                let bytes = Bytes::from(render.await?);
+                self.save(key, &bytes);
                 Ok(bytes)
             })
             .await
+    }
+
+    /// Keeps `bytes` in the store, in the background: the answer does not
+    /// wait for the write.
+    fn save(&self, key: &str, bytes: &Bytes) {
+        if let Some(store) = self.store.clone() {
+            let (key, bytes) = (key.to_owned(), bytes.clone());
+            tokio::spawn(async move { store.save(&key, bytes).await });
+        }
+    }
+
+    /// The render of `key` when either tier holds it.
+    pub async fn cached(&self, key: &str) -> Option<Bytes> {
+        if let Some(bytes) = self.entries.get(key) {
+            return Some(bytes);
+        }
+        let stored = self.store.as_ref()?.load(key).await?;
+        self.entries.insert(key.to_owned(), stored.clone());
+        Some(stored)
+    }
+
+    fn lives(&self) -> std::sync::MutexGuard<'_, HashMap<String, Arc<Live>>> {
+        // The map stays consistent if a holder panicked.
+        self.live.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn live_of(&self, key: &str) -> Option<Arc<Live>> {
+        self.lives().get(key).cloned()
+    }
+
+    /// The render of `key` being sent as it is made, and whether the
+    /// caller has just created it (then it must run it and end it with
+    /// [`RenderCache::finish_live`]).
+    pub fn live(&self, key: &str) -> (Arc<Live>, bool) {
+        let mut lives = self.lives();
+        if let Some(live) = lives.get(key) {
+            return (live.clone(), false);
+        }
+        let live = Live::new();
+        lives.insert(key.to_owned(), live.clone());
+        (live, true)
+    }
+
+    /// Ends the render of `key` that [`RenderCache::live`] created: a
+    /// complete one enters both tiers before it leaves the map, so a new
+    /// request finds it in one or the other.
+    pub fn finish_live(&self, key: &str, live: &Live, whole: Result<Bytes, ApiError>) {
+        if let Ok(bytes) = &whole {
+            self.entries.insert(key.to_owned(), bytes.clone());
+            self.save(key, bytes);
+        }
+        live.end(whole);
+        self.lives().remove(key);
     }
 }

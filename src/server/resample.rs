@@ -13,16 +13,22 @@
 //!   attempt and the count, which also names its ETag: a repeated request
 //!   is served from memory or answered 304 without a run.
 //! - A job whose trees are gone answers 410 `plan_outdated`.
+//! - A re-sampled delta stream is sent as it renders the first time it is
+//!   asked for ([`super::streamed`]); the animated GLB, whose file is only
+//!   written once every frame is in, is sent whole.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
+use axum::http::HeaderMap;
+use axum::response::Response;
 use bytes::Bytes;
 use serde_json::{Value, json};
 use treemorph_api::ErrorCode;
 use treemorph_api::jobs::JobRequest;
 
-use super::AppState;
+use super::streamed::{Live, LiveSink};
+use super::{AppState, blob, streamed};
 use crate::error::ApiError;
 use crate::jobs::queue::JobRow;
 use crate::pipeline::{
@@ -191,6 +197,57 @@ pub async fn file(
         .renders
         .get_or_render(key, run(state, row, spec, what))
         .await
+}
+
+/// Serves the re-sampled delta stream under `key` ([`prepare`]): from the
+/// render cache, or as it renders ([`super::streamed`]), joining a render
+/// of the same key in progress.
+pub async fn streamed(
+    state: &AppState,
+    row: &JobRow,
+    key: &str,
+    spec: JobSpec,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    check_version(row)?;
+    let media = treemorph_api::delta::MEDIA_TYPE;
+    if let Some(bytes) = state.renders.cached(key).await {
+        return Ok(blob::serve_bytes(key, media, headers, bytes));
+    }
+    let (live, started) = state.renders.live(key);
+    if started {
+        let run = render_live(
+            state.clone(),
+            row.clone(),
+            key.to_owned(),
+            spec,
+            live.clone(),
+        );
+        tokio::spawn(run);
+    }
+    live.started().await?;
+    Ok(streamed::response(key, media, live))
+}
+
+/// Runs the re-sample whose pieces go to `live`, then ends it (into the
+/// cache when complete).
+async fn render_live(state: AppState, row: JobRow, key: String, spec: JobSpec, live: Arc<Live>) {
+    let feed = live.clone();
+    let whole = on_inputs(&state, &row, spec, move |runner, input| {
+        let mut sink = LiveSink::new(feed);
+        runner.run(input, &mut sink)?;
+        Ok(sink.into_whole())
+    })
+    .await
+    .and_then(|whole| {
+        whole
+            .map(Bytes::from)
+            .ok_or_else(|| ApiError::internal("the run wrote no stream.tmd"))
+    });
+    if let Err(e) = &whole {
+        tracing::warn!(key, code = ?e.code, error = %e.message, "a streamed re-sample failed");
+    }
+    state.renders.finish_live(&key, &live, whole);
 }
 
 async fn run(

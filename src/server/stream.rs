@@ -43,8 +43,8 @@ pub fn routes() -> OpenApiRouter<AppState> {
 #[serde(deny_unknown_fields)]
 pub struct StreamQuery {
     /// Re-sample a succeeded job's sequence with this many frames,
-    /// rendered on request (within the server's frame limit); without it,
-    /// the job's own stream.
+    /// rendered on request (within the server's frame limit) and sent as
+    /// it renders the first time; without it, the job's own stream.
     #[param(minimum = 2)]
     pub frames: Option<u32>,
     /// The one frame at this instant in [0, 1] of a succeeded job, as a
@@ -73,7 +73,7 @@ pub struct StreamQuery {
         ("If-None-Match" = Option<String>, Header, description = "ETag of a cached copy (finished jobs)"),
     ),
     responses(
-        (status = 200, description = "The stream (chunked and live while the job runs); with `t` and `header=false`, one frame record (`application/vnd.treemorph.delta-frame`)",
+        (status = 200, description = "The stream (chunked and live while the job runs, or while a re-sample first renders); with `t` and `header=false`, one frame record (`application/vnd.treemorph.delta-frame`)",
             content_type = "application/vnd.treemorph.delta", body = [u8]),
         (status = 206, description = "A byte range of a finished stream",
             content_type = "application/vnd.treemorph.delta", body = [u8]),

@@ -693,16 +693,26 @@ async fn streams_render_at_any_instant_on_request() {
     app.stop().await;
 }
 
+/// A server whose test runner takes `ms` a frame, and its succeeded
+/// morph of `frames` frames.
+async fn succeeded_morph(
+    ms: u64,
+    frames: u32,
+) -> (crate::common::TestApp, Arc<TestRunner>, String) {
+    let runner = Arc::new(TestRunner::slow(Duration::from_millis(ms)));
+    let app = spawn_with(runner.clone(), |_| {}).await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, frames).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    app.wait_status(&id, "succeeded").await;
+    (app, runner, id)
+}
+
 /// Concurrent requests for one instant render it once, and the render is
 /// kept for later requests; another instant renders anew.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_instant_renders_once_for_concurrent_requests() {
-    let runner = Arc::new(TestRunner::slow(Duration::from_millis(100)));
-    let app = spawn_with(runner.clone(), |_| {}).await;
-    let (a, b) = (app.tree(1).await, app.tree(2).await);
-    let (_, job) = app.morph(&a, &b, 3).await;
-    let id = job["id"].as_str().unwrap().to_owned();
-    app.wait_status(&id, "succeeded").await;
+    let (app, runner, id) = succeeded_morph(100, 3).await;
     let path = format!("/v1/jobs/{id}/frame.glb?t=0.25");
     let answers = futures_util::future::join_all(
         (0..8).map(|_| async { app.get(&path).await.bytes().await.unwrap() }),
@@ -718,6 +728,54 @@ async fn an_instant_renders_once_for_concurrent_requests() {
     assert_eq!(runner.instants(), 1, "a cached render was rendered again");
     app.get(&format!("/v1/jobs/{id}/frame.glb?t=0.5")).await;
     assert_eq!(runner.instants(), 2);
+    app.stop().await;
+}
+
+/// The first `stream?frames=N` of a job is sent as it renders (the header
+/// record before the frames are made, 150 ms apart), a request that comes
+/// meanwhile joins that render, and the finished stream is cached: one run
+/// for all of them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_resampled_stream_is_sent_as_it_renders_and_rendered_once() {
+    let (app, runner, id) = succeeded_morph(150, 2).await;
+    let runs = runner.runs();
+    let url = format!("/v1/jobs/{id}/stream?frames=6");
+
+    let mut first = app.get(&url).await;
+    assert_eq!(first.status(), 200);
+    assert_eq!(
+        first.headers()["content-type"],
+        treemorph_api::delta::MEDIA_TYPE
+    );
+    let etag = first.headers()["etag"].to_str().unwrap().to_owned();
+    let head = first.chunk().await.unwrap().expect("a first piece");
+    let joined = app.get(&url).await;
+    assert_eq!(joined.status(), 200);
+    let mut whole = head.to_vec();
+    while let Some(chunk) = first.chunk().await.unwrap() {
+        whole.extend_from_slice(&chunk);
+    }
+    assert!(
+        head.len() < whole.len(),
+        "the whole stream came in one piece"
+    );
+    assert_eq!(joined.bytes().await.unwrap(), whole);
+    let (_, frames) = treemorph_api::delta::decode_all(&whole, &Default::default()).unwrap();
+    assert_eq!(frames.len(), 6);
+
+    let cached = app.get(&url).await;
+    assert_eq!(cached.headers()["etag"].to_str().unwrap(), etag);
+    assert_eq!(cached.bytes().await.unwrap(), whole);
+    let range = app
+        .client
+        .get(app.url(&url))
+        .header("range", "bytes=0-3")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(range.status(), 206);
+    assert_eq!(range.bytes().await.unwrap(), whole[..4]);
+    assert_eq!(runner.runs(), runs + 1, "the re-sample ran more than once");
     app.stop().await;
 }
 

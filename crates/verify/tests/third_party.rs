@@ -298,8 +298,8 @@ fn partner(trees: &[Loaded], k: usize, shift: usize) -> Option<&Loaded> {
 /// endpoints against the inputs, and with `skinned` the skinned
 /// animation's error. The skinned check runs on the first shift's pairs
 /// only: every tree is a source there once, and its fit and encoding
-/// cost as much as the rest of the cell (about 45 s of CI on the second
-/// shift's pairs too).
+/// cost as much as the rest of the cell (the check took about 90 s of CI
+/// on all 20 pairs).
 fn morph_cell(
     source: &Loaded,
     target: Option<&Loaded>,

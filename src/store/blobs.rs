@@ -319,6 +319,7 @@ fn sync_error(source: std::io::Error) -> BlobError {
 /// An S3 builder for `bucket` configured from the `AWS_*` variables among
 /// `env` (see the module docs).
 fn s3_builder(bucket: &str, env: impl IntoIterator<Item = (String, String)>) -> AmazonS3Builder {
+    crate::tls::install_crypto_provider();
     let mut builder = AmazonS3Builder::new().with_bucket_name(bucket);
     let mut http_decided = false;
     for (key, value) in env {

@@ -149,7 +149,7 @@ pub async fn spawn_in(
     }));
     TestApp {
         base,
-        client: reqwest::Client::new(),
+        client: http_client(),
         state,
         dir,
         shutdown: Some(tx),
@@ -212,4 +212,11 @@ pub async fn eventually<F: std::future::Future<Output = bool>>(mut done: impl Fn
     while !done().await && tokio::time::Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+}
+
+/// An HTTP client for the tests, with the process's TLS crypto provider
+/// installed first (reqwest is built without one: `treemorph::tls`).
+pub fn http_client() -> reqwest::Client {
+    treemorph::tls::install_crypto_provider();
+    reqwest::Client::new()
 }

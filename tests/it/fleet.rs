@@ -459,7 +459,7 @@ async fn a_fleet_of_processes_survives_kill_9() {
     let apis = procs;
     let api_urls: Vec<String> = apis.iter().map(|p| p.base.clone()).collect();
     let db = Db::connect(&fleet.database_url).await.unwrap();
-    let client = reqwest::Client::new();
+    let client = crate::common::http_client();
 
     // Trees, then the jobs, through both API processes.
     let mut trees = Vec::new();

@@ -74,6 +74,7 @@ impl Server {
             .unwrap();
         let base = crate::common::base_url(&mut child)
             .unwrap_or_else(|line| panic!("unexpected first line {line:?}"));
+        treemorph::tls::install_crypto_provider();
         Server {
             child,
             base,

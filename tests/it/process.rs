@@ -45,7 +45,7 @@ fn start(dir: &std::path::Path, runner: &str, extra: &[&str]) -> Server {
     Server {
         child,
         base: addr,
-        client: reqwest::Client::new(),
+        client: crate::common::http_client(),
     }
 }
 

@@ -4,8 +4,9 @@
 //! reqwest is built without a provider of its own (`rustls-no-provider`):
 //! its default, AWS-LC, is a large C library, and ring serves the same
 //! clients. reqwest then panics when it builds a client before a process
-//! default is installed, so every place that builds one calls
-//! [`install_crypto_provider`] first.
+//! default is installed, so our clients start from [`client_builder`],
+//! which installs it, and code that lets a library build its own clients
+//! (object_store's S3 client) calls [`install_crypto_provider`] first.
 
 use std::sync::Once;
 
@@ -18,4 +19,11 @@ pub fn install_crypto_provider() {
         // serves these clients as well.
         let _ = rustls::crypto::ring::default_provider().install_default();
     });
+}
+
+/// A reqwest client builder, with the crypto provider installed: every
+/// reqwest client of ours starts here, so none can be built before it.
+pub fn client_builder() -> reqwest::ClientBuilder {
+    install_crypto_provider();
+    reqwest::Client::builder()
 }

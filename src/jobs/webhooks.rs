@@ -259,8 +259,7 @@ async fn send(services: &Services, due: &Due) -> Result<(), String> {
     let (url, addrs) =
         resolve_callback(&due.url, services.settings.allow_private_callbacks).await?;
     let host = url.host_str().unwrap_or_default().to_owned();
-    crate::tls::install_crypto_provider();
-    let client = reqwest::Client::builder()
+    let client = crate::tls::client_builder()
         .redirect(reqwest::redirect::Policy::none())
         .timeout(Duration::from_secs(10))
         .resolve_to_addrs(&host, &addrs)

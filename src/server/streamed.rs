@@ -126,35 +126,36 @@ impl Live {
     /// Waits for the first piece; the render's error when it ended
     /// without one.
     pub async fn started(&self) -> Result<(), ApiError> {
-        let mut rx = self.changed.subscribe();
-        loop {
-            {
-                let p = self.pieces();
-                if !p.chunks.is_empty() {
-                    return Ok(());
-                }
-                match &p.end {
-                    Some(Err(e)) => return Err(e.clone()),
-                    Some(Ok(_)) => return Ok(()),
-                    None => {}
-                }
-            }
-            if rx.changed().await.is_err() {
-                return Ok(());
-            }
-        }
+        let started = self
+            .wait_for(|p| match &p.end {
+                _ if !p.chunks.is_empty() => Some(Ok(())),
+                Some(Err(e)) => Some(Err(e.clone())),
+                Some(Ok(_)) => Some(Ok(())),
+                None => None,
+            })
+            .await;
+        started.unwrap_or(Ok(()))
     }
 
     /// Waits for the end: the whole file, or the render's error.
     pub async fn finished(&self) -> Result<Bytes, ApiError> {
+        let end = self.wait_for(|p| p.end.clone()).await;
+        end.unwrap_or_else(|| Err(ApiError::internal("a render ended without a result")))
+    }
+
+    /// Waits until `ready` finds what it looks for in the pieces; `None`
+    /// when the render is gone without it.
+    async fn wait_for<T>(&self, mut ready: impl FnMut(&Pieces) -> Option<T>) -> Option<T> {
+        // Subscribed before the first look, so a change between the look
+        // and the wait still wakes it.
         let mut rx = self.changed.subscribe();
         loop {
-            if let Some(end) = &self.pieces().end {
-                return end.clone();
+            // The lock is let go before the wait.
+            let found = ready(&self.pieces());
+            if found.is_some() {
+                return found;
             }
-            if rx.changed().await.is_err() {
-                return Err(ApiError::internal("a render ended without a result"));
-            }
+            rx.changed().await.ok()?;
         }
     }
 

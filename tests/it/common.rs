@@ -215,8 +215,9 @@ pub async fn eventually<F: std::future::Future<Output = bool>>(mut done: impl Fn
 }
 
 /// An HTTP client for the tests, with the process's TLS crypto provider
-/// installed first (reqwest is built without one: `treemorph::tls`).
+/// installed (reqwest is built without one: `treemorph::tls`).
 pub fn http_client() -> reqwest::Client {
-    treemorph::tls::install_crypto_provider();
-    reqwest::Client::new()
+    treemorph::tls::client_builder()
+        .build()
+        .expect("a client with default settings")
 }

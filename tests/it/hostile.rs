@@ -74,11 +74,10 @@ impl Server {
             .unwrap();
         let base = crate::common::base_url(&mut child)
             .unwrap_or_else(|line| panic!("unexpected first line {line:?}"));
-        treemorph::tls::install_crypto_provider();
         Server {
             child,
             base,
-            client: reqwest::Client::builder()
+            client: treemorph::tls::client_builder()
                 .timeout(Duration::from_secs(30))
                 .build()
                 .unwrap(),

@@ -162,8 +162,7 @@ impl Api {
             let path = format!("{}/", base.path());
             base.set_path(&path);
         }
-        crate::tls::install_crypto_provider();
-        let http = reqwest::Client::builder()
+        let http = crate::tls::client_builder()
             .connect_timeout(CONNECT_TIMEOUT)
             .read_timeout(READ_TIMEOUT)
             .user_agent(concat!("treemorph-client/", env!("CARGO_PKG_VERSION")))

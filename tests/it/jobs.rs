@@ -8,7 +8,7 @@ use serde_json::{Value, json};
 use treemorph::jobs::testing::{TestBehaviour, TestRunner, frame_glb, instant_glb, instant_stream};
 use treemorph_api::ErrorCode;
 
-use crate::common::{error_code, spawn, spawn_with};
+use crate::common::{error_code, eventually, spawn, spawn_with};
 
 fn sketch(tree: &str, frames: u32) -> Value {
     json!({
@@ -536,17 +536,30 @@ async fn metrics_and_health_report() {
     assert_eq!((s, &h["status"]), (200, &json!("ok")));
     let (s, _) = app.get_json("/readyz").await;
     assert_eq!(s, 200);
-    let r = app.get("/metrics").await;
-    assert_eq!(r.status(), 200);
-    let text = r.text().await.unwrap();
-    for needle in [
+    let needles = [
         "treemorph_jobs{status=\"succeeded\"} 1",
         "treemorph_jobs{status=\"queued\"} 0",
         "route=\"/v1/jobs/{id}\",status=\"200\"",
         "treemorph_job_duration_seconds_count{kind=\"morph\",outcome=\"succeeded\"} 1",
         "treemorph_job_stage_duration_seconds_count{kind=\"morph\",stage=\"frames\"}",
         "treemorph_jobs_in_flight 0",
-    ] {
+    ];
+    let metrics = || async {
+        let r = app.get("/metrics").await;
+        assert_eq!(r.status(), 200);
+        r.text().await.unwrap()
+    };
+    // The worker records the attempt's duration and leaves the in-flight
+    // gauge once it has committed the job's end, so the job can answer
+    // `succeeded` a moment before /metrics counts it (CI saw the duration
+    // missing once).
+    eventually(|| async {
+        let text = metrics().await;
+        needles.iter().all(|n| text.contains(n))
+    })
+    .await;
+    let text = metrics().await;
+    for needle in needles {
         assert!(text.contains(needle), "{needle} missing:\n{text}");
     }
     app.stop().await;

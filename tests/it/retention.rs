@@ -132,14 +132,8 @@ async fn ended_jobs_expire_after_the_result_ttl_and_trees_stay() {
     }
     // The row goes first and the blobs right after it, in the same sweep:
     // a job that answers 404 may still be losing its blobs.
-    while blob_files(&app) != before {
-        assert!(
-            tokio::time::Instant::now() < deadline,
-            "blobs left behind: {:?}",
-            blob_files(&app)
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    eventually(|| async { blob_files(&app) == before }).await;
+    assert_eq!(blob_files(&app), before, "blobs left behind");
     let (s, _) = app.get_json(&format!("/v1/trees/{a}")).await;
     assert_eq!(s, 200, "trees do not expire");
     app.stop().await;

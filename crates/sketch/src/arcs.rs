@@ -48,7 +48,7 @@ use crate::time::Clocks;
 
 /// The end pose and per-node turns of a plan, and the rotations of the
 /// last frame placed.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub(crate) struct Arcs {
     /// The solved end pose.
     end: Vec<Vec3>,

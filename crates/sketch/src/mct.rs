@@ -38,6 +38,7 @@
 //! so we climb to a cage that holds it.
 
 use glam::Vec2;
+use rayon::prelude::*;
 use serde::Serialize;
 use treemorph_analysis::{Analysis, ChainId, GroupId, Hull};
 use treemorph_tree::geom::NONE;
@@ -139,6 +140,54 @@ pub(crate) struct Mct {
     pub offsets: Vec<usize>,
     /// Total cage vertices (the flat buffers' length).
     pub vertex_count: usize,
+}
+
+/// Sets the mean value coordinates of every cage vertex in its parent
+/// cage, and every cage's offset in the flat per-vertex buffers. The
+/// cages are independent of each other: computed in parallel.
+fn cage_weights(cages: &mut [Cage]) {
+    let mut offset = 0;
+    for cage in cages.iter_mut() {
+        cage.offset = offset;
+        offset += cage.rest.len();
+    }
+    let weights: Vec<Vec<f32>> = cages
+        .par_iter()
+        .map(|cage| {
+            let Some(p) = cage.parent else {
+                return Vec::new();
+            };
+            let parent = &cages[p as usize].rest;
+            let mut w = vec![0.0f32; cage.rest.len() * parent.len()];
+            for (v, row) in cage.rest.iter().zip(w.chunks_exact_mut(parent.len())) {
+                mvc::coordinates(parent, *v, row);
+            }
+            w
+        })
+        .collect();
+    for (cage, w) in cages.iter_mut().zip(weights) {
+        cage.weights = w;
+    }
+}
+
+/// The mean value coordinates of every `(node, cage)` of `found` (sorted
+/// by node) in its cage, flat in that order (`total` values): tens of
+/// thousands of independent rows, computed in parallel.
+fn node_weights(cages: &[Cage], found: &[(u32, u32)], ndc: &[Vec2], total: usize) -> Vec<f32> {
+    let mut weights = vec![0.0f32; total];
+    let mut rows: Vec<&mut [f32]> = Vec::with_capacity(found.len());
+    let mut rest = weights.as_mut_slice();
+    for &(_, cage) in found {
+        let (row, tail) = rest.split_at_mut(cages[cage as usize].rest.len());
+        rows.push(row);
+        rest = tail;
+    }
+    rows.into_par_iter()
+        .zip(found.par_iter())
+        .for_each(|(row, &(node, cage))| {
+            mvc::coordinates(&cages[cage as usize].rest, ndc[node as usize], row);
+        });
+    weights
 }
 
 /// A lobe silhouette: CCW polygon and the hull vertex of each corner.
@@ -343,22 +392,7 @@ pub(crate) fn build(
         }
     }
     let mut cages = b.cages;
-
-    // Mean value coordinates of every cage vertex in its parent cage.
-    let mut offset = 0;
-    for i in 0..cages.len() {
-        cages[i].offset = offset;
-        offset += cages[i].rest.len();
-        if let Some(p) = cages[i].parent {
-            let m = cages[p as usize].rest.len();
-            let k = cages[i].rest.len();
-            let mut w = vec![0.0f32; k * m];
-            for (v, row) in cages[i].rest.iter().zip(w.chunks_exact_mut(m)) {
-                mvc::coordinates(&cages[p as usize].rest, *v, row);
-            }
-            cages[i].weights = w;
-        }
-    }
+    cage_weights(&mut cages);
 
     // Control cages of every chain node (the tip always gets one).
     let diag: Vec<f32> = cages.iter().map(|c| polygon::diagonal(&c.rest)).collect();
@@ -401,27 +435,26 @@ pub(crate) fn build(
         }
     }
     found.sort_unstable();
-    let mut weights = Vec::new();
+    let mut total = 0;
     let mut k = 0;
     for node in 0..node_count {
-        offsets[node] = weights.len();
+        offsets[node] = total;
         if k < found.len() && found[k].0 as usize == node {
             let cage = found[k].1;
             control[node] = cage;
-            let m = cages[cage as usize].rest.len();
-            let start = weights.len();
-            weights.resize(start + m, 0.0);
-            mvc::coordinates(&cages[cage as usize].rest, ndc[node], &mut weights[start..]);
+            total += cages[cage as usize].rest.len();
             k += 1;
         }
     }
-    offsets[node_count] = weights.len();
+    offsets[node_count] = total;
+    let weights = node_weights(&cages, &found, ndc, total);
+    let vertex_count = cages.iter().map(|c| c.rest.len()).sum();
     Mct {
         cages,
         control,
         weights,
         offsets,
-        vertex_count: offset,
+        vertex_count,
     }
 }
 

@@ -31,6 +31,25 @@ use treemorph_tree::geom::closest_on_segment;
 /// Writes the mean value coordinates of `p` with respect to `cage` into
 /// `out` (`out.len() == cage.len()`). The cage needs ≥ 3 vertices.
 pub(crate) fn coordinates(cage: &[Vec2], p: Vec2, out: &mut [f32]) {
+    SCRATCH.with_borrow_mut(|scratch| coordinates_with(cage, p, out, scratch));
+}
+
+/// Per-thread buffers of [`coordinates`]: the plan computes coordinates
+/// for every node and cage vertex, tens of thousands of calls, which
+/// allocated four vectors each.
+#[derive(Default)]
+struct Scratch {
+    s: Vec<DVec2>,
+    r: Vec<f64>,
+    tans: Vec<f64>,
+    w: Vec<f64>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+}
+
+fn coordinates_with(cage: &[Vec2], p: Vec2, out: &mut [f32], scratch: &mut Scratch) {
     let n = cage.len();
     debug_assert_eq!(out.len(), n);
     let x = p.as_dvec2();
@@ -40,8 +59,11 @@ pub(crate) fn coordinates(cage: &[Vec2], p: Vec2, out: &mut [f32]) {
         .fold(0.0f64, f64::max)
         .max(1e-30);
     let eps = 1e-9 * scale;
-    let mut s: Vec<DVec2> = Vec::with_capacity(n);
-    let mut r: Vec<f64> = Vec::with_capacity(n);
+    let Scratch { s, r, tans, w } = scratch;
+    s.clear();
+    r.clear();
+    tans.clear();
+    w.clear();
     for v in cage {
         let si = v.as_dvec2() - x;
         let ri = si.length();
@@ -55,7 +77,6 @@ pub(crate) fn coordinates(cage: &[Vec2], p: Vec2, out: &mut [f32]) {
         return;
     }
     // tan(α_i / 2) for each edge i → i+1; on an edge, interpolate.
-    let mut tans: Vec<f64> = Vec::with_capacity(n);
     for i in 0..n {
         let j = (i + 1) % n;
         let a = s[i].perp_dot(s[j]); // 2 × signed area
@@ -70,7 +91,6 @@ pub(crate) fn coordinates(cage: &[Vec2], p: Vec2, out: &mut [f32]) {
         let t = if d < 0.0 { (rr - d) / a } else { a / (rr + d) };
         tans.push(t);
     }
-    let mut w: Vec<f64> = Vec::with_capacity(n);
     let mut sum = 0.0;
     let mut abs_sum = 0.0;
     for i in 0..n {

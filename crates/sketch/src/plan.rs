@@ -196,13 +196,13 @@ impl SketchPlan {
             // The fit's sketcher ends solved for the fitted crown: the
             // pacing measures on it rather than solving it again.
             let (delta, pace) = {
-                let (delta, mut sketcher) = foliage::fit(&plan, options.foliage_passes)?;
-                (delta, staged.then(|| pace(&mut sketcher)).flatten())
+                let (delta, sketcher) = foliage::fit(&plan, options.foliage_passes)?;
+                (delta, staged.then(|| pace(&sketcher)).flatten())
             };
             plan.crown_delta = delta;
             plan.pace = pace;
         } else if staged {
-            plan.pace = pace(&mut Sketcher::new(&plan));
+            plan.pace = pace(&Sketcher::new(&plan));
         }
         Ok(plan)
     }
@@ -286,11 +286,18 @@ impl SketchPlan {
 }
 
 /// How a staged sketch's `t` is paced, measured on a `sketcher` of its
-/// plan made before the plan had a pace.
-fn pace(sketcher: &mut Sketcher) -> Option<Pace> {
+/// plan made before the plan had a pace. The samples' branches are placed
+/// in parallel first (they are independent), then measured in order.
+fn pace(sketcher: &Sketcher) -> Option<Pace> {
     let easing = sketcher.plan().options.schedule.easing;
+    let ts: Vec<f32> = (0..=PACE_SAMPLES)
+        .map(|i| i as f32 / PACE_SAMPLES as f32)
+        .collect();
+    let mut frames = sketcher.branches_at_each(&ts).into_iter();
     Pace::measure(PACE_SAMPLES, easing, |t, frame| {
-        sketcher.place_branches(t, frame);
+        let next = frames.next().expect("a frame per sample");
+        debug_assert_eq!(next.t, t);
+        *frame = next;
     })
 }
 
@@ -691,6 +698,20 @@ pub(crate) mod tests {
         let mut plan = heart_plan(SketchOptions::default());
         let kept = plan.pace.take();
         assert!(kept.is_some());
-        assert_eq!(kept, pace(&mut Sketcher::new(&plan)));
+        assert_eq!(kept, pace(&Sketcher::new(&plan)));
+    }
+
+    /// The pace's samples, placed in parallel, are the frames one sketcher
+    /// places in order: the same pace, bit for bit.
+    #[test]
+    fn parallel_pace_samples_equal_sequential_ones() {
+        let plan = heart_plan(SketchOptions::default());
+        let mut sketcher = Sketcher::new(&plan);
+        let easing = plan.options.schedule.easing;
+        let sequential = Pace::measure(PACE_SAMPLES, easing, |t, frame| {
+            sketcher.place_branches(t, frame);
+        });
+        assert!(sequential.is_some());
+        assert_eq!(pace(&Sketcher::new(&plan)), sequential);
     }
 }

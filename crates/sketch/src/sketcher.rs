@@ -88,28 +88,29 @@ impl<'p> Sketcher<'p> {
     /// The nodes and radii of `frame` at `t` (in [0, 1]), its leaves
     /// cleared; returns how much of the wilting subtrees is left.
     pub(crate) fn place_branches(&mut self, t: f32, frame: &mut Frame) -> f32 {
-        let plan = self.plan;
-        let rest = &plan.rest;
-        frame.t = t;
-        frame.bark_blend = 0.0;
-        frame.positions.clear();
-        frame.positions.extend_from_slice(&rest.positions);
-        frame.radii.clear();
-        frame.radii.extend_from_slice(&rest.radii);
-        frame.leaves.clear();
-        let paced = self.clocks.paced(t);
-        if t > 0.0 {
-            self.arcs.place(
-                plan,
-                &self.clocks,
-                paced,
-                &mut frame.positions,
-                &mut frame.radii,
-            );
-        }
-        let left = 1.0 - self.clocks.shed(paced);
-        shrink_wilts(plan, left, frame);
-        left
+        branches_at(self.plan, &self.clocks, &mut self.arcs, t, frame)
+    }
+
+    /// The branches at each of `ts` (in [0, 1]), as
+    /// [`Sketcher::place_branches`] places them: the pacing samples the
+    /// whole motion this way. The instants are split into one run per
+    /// core, each placed on its own copy of the turn tables (a copy per
+    /// instant would cost as much as placing it).
+    pub(crate) fn branches_at_each(&self, ts: &[f32]) -> Vec<Frame> {
+        use rayon::prelude::*;
+        let per_run = ts.len().div_ceil(rayon::current_num_threads()).max(1);
+        ts.par_chunks(per_run)
+            .flat_map_iter(|run| {
+                let mut arcs = self.arcs.clone();
+                run.iter()
+                    .map(|&t| {
+                        let mut frame = Frame::default();
+                        branches_at(self.plan, &self.clocks, &mut arcs, t, &mut frame);
+                        frame
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect()
     }
 
     /// The end pose, as the paper makes a frame (Step 1–3):
@@ -303,6 +304,31 @@ impl<'p> Sketcher<'p> {
         Tree::new(parts, &treemorph_tree::Limits::default())
             .map_err(|e| SketchError::Internal(format!("the sketched tree is invalid: {e}")))
     }
+}
+
+/// The nodes and radii of `frame` at `t` (see [`Sketcher::place_branches`]).
+fn branches_at(
+    plan: &SketchPlan,
+    clocks: &Clocks,
+    arcs: &mut Arcs,
+    t: f32,
+    frame: &mut Frame,
+) -> f32 {
+    let rest = &plan.rest;
+    frame.t = t;
+    frame.bark_blend = 0.0;
+    frame.positions.clear();
+    frame.positions.extend_from_slice(&rest.positions);
+    frame.radii.clear();
+    frame.radii.extend_from_slice(&rest.radii);
+    frame.leaves.clear();
+    let paced = clocks.paced(t);
+    if t > 0.0 {
+        arcs.place(plan, clocks, paced, &mut frame.positions, &mut frame.radii);
+    }
+    let left = 1.0 - clocks.shed(paced);
+    shrink_wilts(plan, left, frame);
+    left
 }
 
 /// Shrinks the pruned subtrees of `frame` toward their junctions, to

@@ -362,8 +362,11 @@ fn run_morph(
         &spec.render,
         |t, frame| morpher.morph(t, frame),
         |frame| {
-            crossings.push(&plan.topology().strands, frame);
-            meter.measure(frame)
+            let ((), measured) = rayon::join(
+                || crossings.push(&plan.topology().strands, frame),
+                || meter.measure(frame),
+            );
+            measured
         },
         |written, measured| match measured {
             Ok(m) => series.push(&m, written),
@@ -493,8 +496,11 @@ fn run_sketch(
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
         |frame| {
-            crossings.push(&plan.topology().strands, frame);
-            (meter.measure(frame), jumps.jump(frame))
+            let ((), measured) = rayon::join(
+                || crossings.push(&plan.topology().strands, frame),
+                || (meter.measure(frame), jumps.jump(frame)),
+            );
+            measured
         },
         |written, measured| series.push(measured, written),
         sink,
@@ -913,10 +919,15 @@ impl Encoders {
 /// [unmeasured](crate::JobSpec::unmeasured): `construct` right after the
 /// frame is computed (what its construction says), then `measure` with
 /// that and the output-level check of the frame as written. Frame `i`'s
-/// check and `measure` run on one core while frame `i + 1` is evaluated,
-/// constructed-measured and encoded on the other ([`OutputCheck`]), so
+/// check and `measure` run while frame `i + 1` is evaluated, then
+/// constructed-measured and encoded side by side ([`OutputCheck`]), so
 /// `measure` sees frame `i` once frame `i + 1` is computed, and the last
 /// frame after the loop; the metrics are the same, in the same order.
+/// The frame's own work is split in tasks (the construction metrics and
+/// the crossings apart, beside the encoding) so that the core that ends
+/// the check first takes what is left: on the default morph the check
+/// took 8.5 ms a frame, and evaluating, constructing and encoding 12.6 ms
+/// one after the other.
 fn render<M: Send>(
     topology: &FrameTopology,
     spec: &RenderSpec,
@@ -952,11 +963,12 @@ fn render<M: Send>(
             },
             || {
                 eval(t, &mut frame);
-                let constructed = measuring.then(|| construct(&frame));
                 let eval_ms = ms_since(started);
-                encoders
-                    .encode(i, &frame, &mut record)
-                    .map(|out| (out, eval_ms, constructed))
+                let (constructed, encoded) = rayon::join(
+                    || measuring.then(|| construct(&frame)),
+                    || encoders.encode(i, &frame, &mut record),
+                );
+                encoded.map(|out| (out, eval_ms, constructed))
             },
         );
         measured?;

@@ -280,3 +280,18 @@ fn leaf_copies_do_not_coincide() {
         "linear keeps its copies"
     );
 }
+
+/// The pace's samples, measured in parallel runs and joined, give the pace
+/// one morpher measuring them in order gives, bit for bit.
+#[test]
+fn parallel_pace_runs_equal_one_sequential_run() {
+    let mut plan = staged_plan();
+    let easing = ScheduleOptions::default().easing;
+    // Paced as the builder paces it: on the plan before it had a pace.
+    let kept = plan.schedule.pace.take();
+    let mut morpher = Morpher::new(&plan);
+    let sequential =
+        treemorph_tree::timing::Pace::measure(64, easing, |t, frame| morpher.morph(t, frame));
+    assert!(sequential.is_some());
+    assert_eq!(kept, sequential);
+}

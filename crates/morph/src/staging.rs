@@ -11,9 +11,20 @@ use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 
 /// Paces a staged plan's motion evenly (see `schedule`, *Pacing*); `None`
 /// when nothing moves.
+/// The samples are measured in one run per core, each on its own
+/// morpher (a run's first frame is its predecessor's last), and joined:
+/// the same pace as one morpher measuring them in order.
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
-    let mut morpher = Morpher::new(plan);
-    Pace::measure(PACE_SAMPLES, easing, |t, frame| morpher.morph(t, frame))
+    use rayon::prelude::*;
+    let runs = Pace::runs(PACE_SAMPLES, rayon::current_num_threads());
+    let moved: Vec<f32> = runs
+        .into_par_iter()
+        .flat_map_iter(|span| {
+            let mut morpher = Morpher::new(plan);
+            Pace::moves(PACE_SAMPLES, span, |t, frame| morpher.morph(t, frame))
+        })
+        .collect();
+    Pace::of_moves(&moved, easing)
 }
 
 /// Instants at which a staged plan samples its motion to pace it.

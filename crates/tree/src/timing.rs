@@ -7,6 +7,8 @@
 //! inside it ([`Ease`]). The phases themselves — which operations go in
 //! which window — are each pipeline's own (see their crate docs).
 
+use std::ops::RangeInclusive;
+
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Frame, JumpMeter};
@@ -194,24 +196,46 @@ impl Pace {
     pub fn measure(
         samples: usize,
         easing: f32,
-        mut frame_at: impl FnMut(f32, &mut Frame),
+        frame_at: impl FnMut(f32, &mut Frame),
     ) -> Option<Pace> {
+        Pace::of_moves(&Pace::moves(samples, 1..=samples, frame_at), easing)
+    }
+
+    /// How far the motion `frame_at` makes moves from even sample `i − 1`
+    /// to sample `i` (of `samples` after τ = 0), for each `i` of `span`
+    /// (within `1..=samples`). Runs of samples ([`Pace::runs`]) can be
+    /// measured apart, in parallel, and their moves joined for
+    /// [`Pace::of_moves`]: the same moves as [`Pace::measure`]'s.
+    pub fn moves(
+        samples: usize,
+        span: RangeInclusive<usize>,
+        mut frame_at: impl FnMut(f32, &mut Frame),
+    ) -> Vec<f32> {
+        let at = |i: usize| i as f32 / samples as f32;
         let mut frame = Frame::default();
         let mut jumps = JumpMeter::default();
-        frame_at(0.0, &mut frame);
+        frame_at(at(span.start().saturating_sub(1)), &mut frame);
         jumps.jump(&frame);
-        let moved: Vec<f32> = (1..=samples)
-            .map(|i| {
-                frame_at(i as f32 / samples as f32, &mut frame);
-                jumps.jump(&frame)
-            })
-            .collect();
-        Pace::of_moves(&moved, easing)
+        span.map(|i| {
+            frame_at(at(i), &mut frame);
+            jumps.jump(&frame)
+        })
+        .collect()
+    }
+
+    /// `1..=samples` cut into `count` (at least 1) consecutive runs of
+    /// about equal length, for [`Pace::moves`].
+    pub fn runs(samples: usize, count: usize) -> Vec<RangeInclusive<usize>> {
+        let per_run = samples.div_ceil(count.max(1)).max(1);
+        (1..=samples)
+            .step_by(per_run)
+            .map(|start| start..=(start + per_run - 1).min(samples))
+            .collect()
     }
 
     /// The pace of a motion that moves `moved[i]` between its even
-    /// samples `i` and `i + 1`.
-    fn of_moves(moved: &[f32], easing: f32) -> Option<Pace> {
+    /// samples `i` and `i + 1`; `None` when nothing moves.
+    pub fn of_moves(moved: &[f32], easing: f32) -> Option<Pace> {
         let mean = moved.iter().sum::<f32>() / moved.len().max(1) as f32;
         if !(mean > 0.0 && mean.is_finite()) {
             return None;
@@ -244,5 +268,46 @@ impl Pace {
         let i = (c.partition_point(|&x| x <= m) - 1).min(c.len() - 2);
         let f = ((m - c[i]) / (c[i + 1] - c[i])).clamp(0.0, 1.0);
         (i as f32 + f) / (c.len() - 1) as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+
+    /// Two nodes moving unevenly: the second accelerates.
+    fn frame_at(t: f32, frame: &mut Frame) {
+        frame.t = t;
+        frame.positions = vec![Vec3::new(t, 0.0, 0.0), Vec3::new(0.0, t * t * t, 1.0)];
+    }
+
+    /// Runs cover `1..=samples` in order, once each, however many.
+    #[test]
+    fn runs_cover_every_sample_once() {
+        for (samples, count) in [(64, 2), (64, 3), (24, 5), (3, 8), (1, 1), (10, 0)] {
+            let joined: Vec<usize> = Pace::runs(samples, count).into_iter().flatten().collect();
+            assert_eq!(
+                joined,
+                (1..=samples).collect::<Vec<_>>(),
+                "{samples} in {count}"
+            );
+        }
+    }
+
+    /// The moves of runs measured apart, joined, are the moves of one run,
+    /// so the pace is the same bit for bit.
+    #[test]
+    fn joined_runs_pace_as_one_measure() {
+        let whole = Pace::measure(24, 0.25, frame_at);
+        assert!(whole.is_some());
+        for count in [1, 2, 3, 7] {
+            let moved: Vec<f32> = Pace::runs(24, count)
+                .into_iter()
+                .flat_map(|span| Pace::moves(24, span, frame_at))
+                .collect();
+            assert_eq!(Pace::of_moves(&moved, 0.25), whole, "{count} runs");
+        }
     }
 }

@@ -11,6 +11,7 @@ use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 
 /// Paces a staged plan's motion evenly (see `schedule`, *Pacing*); `None`
 /// when nothing moves.
+///
 /// The samples are measured in one run per core, each on its own
 /// morpher (a run's first frame is its predecessor's last), and joined:
 /// the same pace as one morpher measuring them in order.

@@ -286,19 +286,11 @@ impl SketchPlan {
 }
 
 /// How a staged sketch's `t` is paced, measured on a `sketcher` of its
-/// plan made before the plan had a pace. The samples' branches are placed
-/// in parallel first (they are independent), then measured in order.
+/// plan made before the plan had a pace (in parallel runs:
+/// [`Sketcher::branch_moves`]).
 fn pace(sketcher: &Sketcher) -> Option<Pace> {
     let easing = sketcher.plan().options.schedule.easing;
-    let ts: Vec<f32> = (0..=PACE_SAMPLES)
-        .map(|i| i as f32 / PACE_SAMPLES as f32)
-        .collect();
-    let mut frames = sketcher.branches_at_each(&ts).into_iter();
-    Pace::measure(PACE_SAMPLES, easing, |t, frame| {
-        let next = frames.next().expect("a frame per sample");
-        debug_assert_eq!(next.t, t);
-        *frame = next;
-    })
+    Pace::of_moves(&sketcher.branch_moves(PACE_SAMPLES), easing)
 }
 
 /// The options, the view's camera and the sketch's points, checked in

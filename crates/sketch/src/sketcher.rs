@@ -4,6 +4,7 @@ use faer::Mat;
 use faer::dyn_stack::MemBuffer;
 use glam::{Quat, Vec2, Vec3};
 use treemorph_tree::geom::NONE;
+use treemorph_tree::timing::Pace;
 use treemorph_tree::{Frame, FrameLeaf, Leaf, LeafMaterial, Materials, Node, Tree, TreeParts};
 
 use crate::arcs::Arcs;
@@ -91,24 +92,20 @@ impl<'p> Sketcher<'p> {
         branches_at(self.plan, &self.clocks, &mut self.arcs, t, frame)
     }
 
-    /// The branches at each of `ts` (in [0, 1]), as
-    /// [`Sketcher::place_branches`] places them: the pacing samples the
-    /// whole motion this way. The instants are split into one run per
-    /// core, each placed on its own copy of the turn tables (a copy per
-    /// instant would cost as much as placing it).
-    pub(crate) fn branches_at_each(&self, ts: &[f32]) -> Vec<Frame> {
+    /// How far the branches move between each of `samples` even instants
+    /// and the next ([`Pace::moves`]), as [`Sketcher::place_branches`]
+    /// places them: what the pacing measures. The instants are measured
+    /// in one run per core, each on its own copy of the turn tables, and
+    /// joined.
+    pub(crate) fn branch_moves(&self, samples: usize) -> Vec<f32> {
         use rayon::prelude::*;
-        let per_run = ts.len().div_ceil(rayon::current_num_threads()).max(1);
-        ts.par_chunks(per_run)
-            .flat_map_iter(|run| {
+        Pace::runs(samples, rayon::current_num_threads())
+            .into_par_iter()
+            .flat_map_iter(|span| {
                 let mut arcs = self.arcs.clone();
-                run.iter()
-                    .map(|&t| {
-                        let mut frame = Frame::default();
-                        branches_at(self.plan, &self.clocks, &mut arcs, t, &mut frame);
-                        frame
-                    })
-                    .collect::<Vec<_>>()
+                Pace::moves(samples, span, |t, frame| {
+                    branches_at(self.plan, &self.clocks, &mut arcs, t, frame);
+                })
             })
             .collect()
     }

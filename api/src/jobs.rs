@@ -517,18 +517,22 @@ pub enum AnimationKind {
     /// the fewest that keep every vertex of every sampled frame within
     /// 0.5 % of the tree's height, and one weight key per sampled frame
     /// (`keyframes` sets how many; default all, at most 120). Leaves and
-    /// bark change material in a staggered dissolve. Default.
+    /// bark change material in a staggered dissolve. Leaves are
+    /// alpha-masked quads, whose outline changes with their texture.
+    /// Default.
     #[default]
     Basis,
     /// One morph target per keyframe (`keyframes`, default 24): the
-    /// file's size grows with the keyframe count.
+    /// file's size grows with the keyframe count. Leaves are 12-point
+    /// outlines that morph between a leaf's two shapes.
     Keyframes,
     /// A skeleton that follows the branch hierarchy (at most
     /// `skeleton_joints` joints), with per-joint translation, rotation
     /// and scale at every sampled frame; bark and leaves are bound to
     /// their chain's joint. What the joints cannot express stays as the
     /// fewest morph targets (at most 4) that keep every vertex within
-    /// 1 % of the tree's height (`metrics.json` reports the error reached); leaves and bark dissolve as in `basis`.
+    /// 1 % of the tree's height (`metrics.json` reports the error
+    /// reached); leaves (quads) and bark dissolve as in `basis`.
     /// For game engines.
     Skinned,
 }

@@ -470,7 +470,9 @@ pub(super) fn sketch_rows(quick: bool, rows: &mut Vec<Row>) {
 /// Frame output at 20,000 chains: meshing, per-frame GLB, the delta stream
 /// against the per-frame GLB, and the animated GLB's size at 60 keyframes.
 pub(super) fn output_rows(quick: bool, rows: &mut Vec<Row>) {
-    use treemorph_gltf::animated::{AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions};
+    use treemorph_gltf::animated::{
+        AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, KEYFRAMES_MESH,
+    };
     use treemorph_gltf::bench::Sway;
     use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
     use treemorph_gltf::frames::FrameMeshes;
@@ -571,6 +573,7 @@ pub(super) fn output_rows(quick: bool, rows: &mut Vec<Row>) {
         (AnimatedEncoding::Meshopt, "meshopt"),
     ] {
         let options = AnimatedOptions::default()
+            .with_mesh(KEYFRAMES_MESH)
             .with_keyframes(frames)
             .with_encoding(encoding);
         let mut written = 0u64;

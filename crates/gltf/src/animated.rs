@@ -70,7 +70,8 @@
 //!
 //! # Size
 //! Every keyframe stores every vertex. For a 20,000-chain tree with the
-//! default meshes (3–10 sides, 12-point leaf contours) whose every leaf
+//! keyframes' default meshes ([`KEYFRAMES_MESH`]: 3–10 sides, 12-point
+//! leaf contours) whose every leaf
 //! changes material — so every leaf has two layers — that is 1.67 million
 //! vertices, and a keyframe costs about 41 MB as floats, 21 MB quantised
 //! and 7 MB with meshopt: 60 keyframes make 2.4 GB, 1.2 GB and 400 MB
@@ -127,10 +128,9 @@ pub struct AnimatedOptions {
     pub duration: f32,
     /// Vertex storage (default [`AnimatedEncoding::Float`]).
     pub encoding: AnimatedEncoding,
-    /// Tube sides and leaf shape (default: 3 to 10 sides, leaves as
-    /// [`LeafShape::Contour`] of 12 points: every keyframe stores every
-    /// vertex, so the animated file uses lighter meshes than a per-frame
-    /// GLB).
+    /// Tube sides and leaf shape (default: 3 to 10 sides and quad
+    /// leaves, [`ANIMATED_MESH`]; [`KEYFRAMES_MESH`] for one target per
+    /// keyframe).
     pub mesh: MeshOptions,
     /// Most joints of a skinned animation besides its still root (default
     /// [`DEFAULT_SKELETON_JOINTS`], for game engines; 0: one per chain).
@@ -141,16 +141,37 @@ pub struct AnimatedOptions {
 /// hundred bones is what engines play vegetation with.
 pub const DEFAULT_SKELETON_JOINTS: usize = 256;
 
+/// The meshes of a motion basis or a skinned animation unless asked
+/// otherwise: 3 to 10 tube sides and quad leaves.
+///
+/// Every vertex is stored once per morph target (up to 17 of them in a
+/// basis), and leaves are most of a tree's vertices: a 12-point contour
+/// fan has 13 vertices to a quad's 4. The blade's alpha cuts out its
+/// outline either way (leaf materials are alpha-masked). What the fan adds
+/// is the outline's morph in the geometry between a leaf's two materials,
+/// and these animations already change a leaf's texture in one swap at
+/// its own time (the dissolve of [`crate::basis`]): with quads the outline
+/// changes in that swap, while the leaf's size and proportions still
+/// follow its blend. Quads halve the default morph's file
+/// (`benches/animation.sh`): 22.4 → 13.6 MB with meshopt, 130.8 → 64.9 MB
+/// as floats, and three.js's GPU estimate 223 → 129 MB.
+pub const ANIMATED_MESH: MeshOptions = MeshOptions::DEFAULT.with_sides(3, 10);
+
+/// The meshes of a keyframes animation unless asked otherwise: 3 to 10
+/// tube sides and [`LeafShape::Contour`] leaves of 12 points, as per-frame
+/// GLBs have: the keyframes output, kept for compatibility, stays as it
+/// was.
+pub const KEYFRAMES_MESH: MeshOptions = MeshOptions::DEFAULT
+    .with_sides(3, 10)
+    .with_leaf_shape(LeafShape::Contour { points: 12 });
+
 impl Default for AnimatedOptions {
     fn default() -> AnimatedOptions {
-        let mesh = MeshOptions::default()
-            .with_sides(3, 10)
-            .with_leaf_shape(LeafShape::Contour { points: 12 });
         AnimatedOptions {
             keyframes: 24,
             duration: 4.0,
             encoding: AnimatedEncoding::Float,
-            mesh,
+            mesh: ANIMATED_MESH,
             skeleton_joints: DEFAULT_SKELETON_JOINTS,
         }
     }

@@ -6,6 +6,11 @@ use crate::bench::Sway;
 use crate::frames::FrameMeshes;
 use crate::test_support::{Parsed, canonical_triangles};
 
+/// What a keyframes animation is built with by default.
+fn keyframes_options() -> AnimatedOptions {
+    AnimatedOptions::default().with_mesh(KEYFRAMES_MESH)
+}
+
 fn sway(frames: usize) -> Sway {
     crate::test_support::maple_sway(frames)
 }
@@ -68,7 +73,7 @@ fn one_hot(k: usize, count: usize) -> Vec<f32> {
 #[test]
 fn keyframes_are_the_base_and_one_target_each() {
     let sway = sway(5);
-    let options = AnimatedOptions::default();
+    let options = keyframes_options();
     let parsed = Parsed::new(&build(&sway, &options));
     let json = &parsed.json;
     assert!(json.get("extensionsUsed").is_none());
@@ -108,7 +113,7 @@ fn keyframes_are_the_base_and_one_target_each() {
 #[test]
 fn fading_leaves_show_exactly_one_layer_per_keyframe() {
     let sway = sway(7);
-    let options = AnimatedOptions::default();
+    let options = keyframes_options();
     let parsed = Parsed::new(&build(&sway, &options));
     let topology = sway.topology();
     let per = options.mesh.leaf_shape.vertices_per_leaf();
@@ -159,7 +164,7 @@ fn a_swapping_leaf_never_overlaps_itself() {
     // Halfway through the interval where a leaf swaps, the shrinking old
     // layer and the growing new one are separated across the leaf's axis.
     let sway = sway(7);
-    let options = AnimatedOptions::default();
+    let options = keyframes_options();
     let parsed = Parsed::new(&build(&sway, &options));
     let topology = sway.topology();
     let per = options.mesh.leaf_shape.vertices_per_leaf();
@@ -205,7 +210,7 @@ fn a_swapping_leaf_never_overlaps_itself() {
 #[test]
 fn quantised_keyframes_stay_within_the_grid_step() {
     let sway = sway(4);
-    let options = AnimatedOptions::default().with_encoding(AnimatedEncoding::Quantized);
+    let options = keyframes_options().with_encoding(AnimatedEncoding::Quantized);
     let parsed = Parsed::new(&build(&sway, &options));
     assert_eq!(
         parsed.json["extensionsRequired"],
@@ -247,11 +252,11 @@ fn meshopt_views_decode_to_the_quantised_bytes() {
     let sway = sway(4);
     let quantised = Parsed::new(&build(
         &sway,
-        &AnimatedOptions::default().with_encoding(AnimatedEncoding::Quantized),
+        &keyframes_options().with_encoding(AnimatedEncoding::Quantized),
     ));
     let glb = build(
         &sway,
-        &AnimatedOptions::default().with_encoding(AnimatedEncoding::Meshopt),
+        &keyframes_options().with_encoding(AnimatedEncoding::Meshopt),
     );
     let meshopt = Parsed::new(&glb);
     assert_eq!(
@@ -311,7 +316,7 @@ fn misuse_is_refused() {
     let sway = sway(3);
     let (topology, radii) = (sway.topology(), sway.reference_radii());
     let bounds = sway.bounds();
-    let options = AnimatedOptions::default();
+    let options = keyframes_options();
     let mut b = AnimatedGlbBuilder::new(topology, radii, bounds, &options).unwrap();
     b.push(&sway.frame(1)).unwrap();
     // Time must increase.
@@ -352,7 +357,7 @@ fn misuse_is_refused() {
 #[test]
 fn streaming_writes_the_same_file() {
     let sway = sway(3);
-    let options = AnimatedOptions::default().with_encoding(AnimatedEncoding::Quantized);
+    let options = keyframes_options().with_encoding(AnimatedEncoding::Quantized);
     let whole = build(&sway, &options);
     let mut b = AnimatedGlbBuilder::new(
         sway.topology(),
@@ -387,7 +392,7 @@ fn threejs_plays_the_animation_as_written() {
         AnimatedEncoding::Quantized,
         AnimatedEncoding::Meshopt,
     ] {
-        let options = AnimatedOptions::default()
+        let options = keyframes_options()
             .with_encoding(encoding)
             .with_duration(duration);
         let glb = build(&sway, &options);

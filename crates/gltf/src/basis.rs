@@ -81,9 +81,9 @@ use serde_json::{Map, Value, json};
 use treemorph_tree::{Aabb, Frame, FrameTopology};
 
 use crate::animated::{
-    AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, Attr, Writer, check_duration, compress,
-    f32_bytes, fading_leaves, grid, i8x4_bytes, i16_bounds, i16x4_bytes, index_accessor, outside,
-    quantise, quantise_normal, threshold, vec3_bytes,
+    AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, Attr, KEYFRAMES_MESH, Writer,
+    check_duration, compress, f32_bytes, fading_leaves, grid, i8x4_bytes, i16_bounds, i16x4_bytes,
+    index_accessor, outside, quantise, quantise_normal, threshold, vec3_bytes,
 };
 use crate::contour::LeafContour;
 use crate::doc::{Data, Doc, Wrap, asset};
@@ -123,6 +123,19 @@ pub enum AnimationKind {
     /// hierarchy ([`AnimatedOptions::skeleton_joints`] joints at most),
     /// with a few residual morph targets.
     Skinned,
+}
+
+impl AnimationKind {
+    /// The options an animation of this kind is built with unless asked
+    /// otherwise: [`AnimatedOptions::default`] (quad leaves, see
+    /// [`ANIMATED_MESH`](crate::animated::ANIMATED_MESH)), with
+    /// [`KEYFRAMES_MESH`] for keyframes.
+    pub fn default_options(self) -> AnimatedOptions {
+        match self {
+            AnimationKind::Keyframes => AnimatedOptions::default().with_mesh(KEYFRAMES_MESH),
+            AnimationKind::Basis | AnimationKind::Skinned => AnimatedOptions::default(),
+        }
+    }
 }
 
 /// The animated GLB of either kind, built from frames pushed in order.

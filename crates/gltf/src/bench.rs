@@ -17,7 +17,9 @@ use glam::{Quat, Vec3};
 use treemorph_api::delta::{Decoder, DecoderOptions, Encoder, Event};
 use treemorph_tree::{Aabb, Frame, FrameLeaf, FrameTopology, Tree};
 
-use crate::animated::{AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, keyframe_indices};
+use crate::animated::{
+    AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions, KEYFRAMES_MESH, keyframe_indices,
+};
 use crate::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use crate::frames::{EncodeError, FrameMeshes};
 use crate::mesh::MeshOptions;
@@ -154,7 +156,8 @@ pub struct BenchOptions {
     pub frame_glb: FrameGlbOptions,
     /// The delta stream (default [`StreamOptions::default`]).
     pub stream: StreamOptions,
-    /// The animated GLB's meshes (default [`AnimatedOptions::default`]).
+    /// The animated GLB's meshes (default [`KEYFRAMES_MESH`]: the cases
+    /// build one morph target per keyframe).
     pub animated_mesh: MeshOptions,
 }
 
@@ -170,7 +173,7 @@ impl Default for BenchOptions {
             ],
             frame_glb: FrameGlbOptions::default(),
             stream: StreamOptions::default(),
-            animated_mesh: AnimatedOptions::default().mesh,
+            animated_mesh: KEYFRAMES_MESH,
         }
     }
 }

@@ -163,20 +163,23 @@ pub struct MeshOptions {
 
 impl Default for MeshOptions {
     fn default() -> MeshOptions {
-        MeshOptions {
-            max_sides: 12,
-            min_sides: 4,
-            min_uv_radius: 0.002,
-            leaf_shape: LeafShape::Quad,
-        }
+        MeshOptions::DEFAULT
     }
 }
 
 impl MeshOptions {
+    /// The default options, as a constant for other defaults to build on.
+    pub const DEFAULT: MeshOptions = MeshOptions {
+        max_sides: 12,
+        min_sides: 4,
+        min_uv_radius: 0.002,
+        leaf_shape: LeafShape::Quad,
+    };
+
     /// These options with the side counts of the thinnest and thickest
     /// strands set.
     #[must_use]
-    pub fn with_sides(mut self, min_sides: u32, max_sides: u32) -> MeshOptions {
+    pub const fn with_sides(mut self, min_sides: u32, max_sides: u32) -> MeshOptions {
         self.min_sides = min_sides;
         self.max_sides = max_sides;
         self
@@ -184,7 +187,7 @@ impl MeshOptions {
 
     /// These options with [`MeshOptions::leaf_shape`] set.
     #[must_use]
-    pub fn with_leaf_shape(mut self, shape: LeafShape) -> MeshOptions {
+    pub const fn with_leaf_shape(mut self, shape: LeafShape) -> MeshOptions {
         self.leaf_shape = shape;
         self
     }

@@ -209,23 +209,30 @@ impl Parsed {
     }
 
     /// What a player shows of the skinned node `name` (first primitive,
-    /// one joint per vertex) at animation key `k`, every channel keyed at
-    /// the same sample times: the joints' translation, rotation and scale
+    /// one joint per vertex) at the time of animation key `k` (the first
+    /// sampler's keys, one per sample): the joints' translation, rotation and scale
     /// at that key composed down the node hierarchy, times their inverse
     /// bind matrices, applied to the positions morphed by the node's
-    /// weights at that key (or by none).
+    /// weights at that key (or by none). The `hidden` target of a swapping
+    /// node is left out: it only hides the node, and this is the geometry
+    /// it shows when drawn.
     pub(crate) fn skinned(&self, name: &str, k: usize, with_targets: bool) -> Vec<Vec3> {
         let nodes = self.json["nodes"].as_array().unwrap();
         let index = |n: &Value| nodes.iter().position(|m| m == n).unwrap();
+        let animation = &self.json["animations"][0];
+        let input = |sampler: &Value| self.floats(sampler["input"].as_u64().unwrap() as usize).0;
+        // Key `k`'s time; a `hidden` weights sampler has extra keys just
+        // before its swaps, so keys are found by time.
+        let time = input(&animation["samplers"][0])[k];
         let at = |node: usize, path: &str, n: usize| -> Option<Vec<f32>> {
-            let animation = &self.json["animations"][0];
             let channel = animation["channels"]
                 .as_array()?
                 .iter()
                 .find(|c| c["target"]["node"] == node && c["target"]["path"] == path)?;
             let sampler = &animation["samplers"][channel["sampler"].as_u64()? as usize];
+            let key = input(sampler).iter().position(|&t| t == time)?;
             let (values, _) = self.floats(sampler["output"].as_u64()? as usize);
-            Some(values[k * n..(k + 1) * n].to_vec())
+            Some(values[key * n..(key + 1) * n].to_vec())
         };
         let mut parent = vec![None; nodes.len()];
         for (i, n) in nodes.iter().enumerate() {
@@ -275,10 +282,16 @@ impl Parsed {
         let targets = self.mesh_of(name)["primitives"][0]["targets"]
             .as_array()
             .map_or(0, Vec::len);
-        let weights = match with_targets {
+        let mut weights = match with_targets {
             true => at(node, "weights", targets).unwrap_or_default(),
             false => Vec::new(),
         };
+        let names = self.mesh_of(name)["extras"]["targetNames"].as_array();
+        if let Some(hidden) = names.and_then(|n| n.iter().position(|t| t == "hidden"))
+            && let Some(w) = weights.get_mut(hidden)
+        {
+            *w = 0.0;
+        }
         let prim = &self.mesh_of(name)["primitives"][0];
         let (vertex_joints, _) =
             self.floats(prim["attributes"]["JOINTS_0"].as_u64().unwrap() as usize);

@@ -16,7 +16,7 @@ use std::process::Command;
 use glam::{Quat, Vec3};
 use treemorph_generate::{GenerateOptions, Preset, generate};
 use treemorph_gltf::animated::{AnimatedEncoding, AnimatedGlbBuilder, AnimatedOptions};
-use treemorph_gltf::basis::BasisGlbBuilder;
+use treemorph_gltf::basis::{AnimationKind, BasisGlbBuilder};
 use treemorph_gltf::bench::Sway;
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::mesh::MeshOptions;
@@ -154,8 +154,11 @@ fn write_frame_samples(dir: &Path) -> Vec<PathBuf> {
         AnimatedEncoding::Meshopt,
     ] {
         let options = AnimatedOptions::default().with_encoding(encoding);
+        let keyframes = AnimationKind::Keyframes
+            .default_options()
+            .with_encoding(encoding);
         let mut builder =
-            AnimatedGlbBuilder::new(topology, radii, sway.bounds(), &options).unwrap();
+            AnimatedGlbBuilder::new(topology, radii, sway.bounds(), &keyframes).unwrap();
         for i in 0..sway.len() {
             builder.push(&sway.frame(i)).unwrap();
         }

@@ -337,7 +337,9 @@ pub enum StreamPart {
 ///   (`group_weights.crossing`).
 /// - 6: a sketch's foliage fit balances its crown against the outline;
 ///   plans are stored (`plan.bin`).
-pub const RENDER_VERSION: u32 = 6;
+/// - 7: a basis or skinned `animation.glb` has quad leaves
+///   (`treemorph_gltf::animated::ANIMATED_MESH`).
+pub const RENDER_VERSION: u32 = 7;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

@@ -51,7 +51,7 @@ use std::time::Instant;
 use serde_json::{Value, json};
 use treemorph_analysis::Analysis;
 use treemorph_api::delta::EncoderOptions;
-use treemorph_gltf::animated::{AnimatedOptions, keyframe_indices};
+use treemorph_gltf::animated::keyframe_indices;
 use treemorph_gltf::basis::{AnimationBuilder, BasisReport};
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_gltf::frames::{EncodeError, FrameMeshes, max_radii};
@@ -825,7 +825,9 @@ impl Encoders {
         let animated = outputs
             .animated
             .then(|| {
-                let options = AnimatedOptions::default()
+                let options = render
+                    .animation
+                    .default_options()
                     .with_keyframes(picks.len())
                     .with_encoding(render.encoding)
                     .with_skeleton_joints(render.skeleton_joints as usize);

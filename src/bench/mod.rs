@@ -126,7 +126,11 @@ const GROUPS: &[Group] = &[
     ),
     (
         job::job_rows,
-        &["default job", "frame at an instant, stored plan"],
+        &[
+            "default job",
+            "frame at an instant, stored plan",
+            "animation.glb, stored plan",
+        ],
     ),
     (
         job::measurement_rows,

@@ -77,6 +77,7 @@ pub use skinning::SKIN_ERROR_BUDGET;
 use std::io::Write;
 
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use serde_json::{Map, Value, json};
 use treemorph_tree::{Aabb, Frame, FrameTopology};
 
@@ -661,18 +662,12 @@ impl BasisGlbBuilder {
         // skeleton).
         let error = if self.grid.is_some() && skin.is_none() {
             let count = targets.stored.len();
-            let all = motion::Pass {
-                count,
-                upto: count,
-                every: 1,
-            };
-            let written = motion::max_errors(
+            motion::max_error(
                 &self.displacements,
                 &targets.read_back,
                 &targets.weights_read_back,
-                all,
-            );
-            written.last().copied().unwrap_or(0.0)
+                count,
+            )
         } else {
             error
         };
@@ -762,6 +757,10 @@ struct Targets {
     offset: bool,
 }
 
+/// A quantised target's positions as a player reads them back (a planar
+/// column) and the scale its weights carry.
+type ReadBack = (Vec<f32>, f32);
+
 /// One target's positions and normals as written.
 enum StoredTarget {
     Float(Vec<Vec3>, Vec<Vec3>),
@@ -795,10 +794,15 @@ impl Targets {
             }
             columns.push((pos, nrm));
         }
-        for (t, &(_, range)) in ranges.iter().enumerate() {
-            let scaled = |c: &[f32]| c.iter().map(|v| v * range).collect::<Vec<f32>>();
-            columns.push((scaled(p.positions.column(t)), scaled(p.normals.column(t))));
-        }
+        let scaled: Vec<(Vec<f32>, Vec<f32>)> = ranges
+            .par_iter()
+            .enumerate()
+            .map(|(t, &(_, range))| {
+                let scaled = |c: &[f32]| c.iter().map(|v| v * range).collect::<Vec<f32>>();
+                (scaled(p.positions.column(t)), scaled(p.normals.column(t)))
+            })
+            .collect();
+        columns.extend(scaled);
         let unit: Vec<f32> = (0..frames)
             .flat_map(|j| {
                 let first = offset.then_some(1.0);
@@ -824,21 +828,26 @@ impl Targets {
         let rows = columns.first().map_or(0, |c| c.0.len());
         let mut weights = unit.clone();
         let mut read_back = Columns::new(rows, if grid.is_some() { count } else { 0 });
-        let mut stored = Vec::with_capacity(count);
-        for (t, (pos, nrm)) in columns.into_iter().enumerate() {
-            match grid {
-                None => {
-                    stored.push(StoredTarget::Float(as_vec3(&pos), as_vec3(&nrm)));
-                }
+        // Converted in parallel; read back and weights scaled in order.
+        let converted: Vec<(StoredTarget, Option<ReadBack>)> = columns
+            .into_par_iter()
+            .map(|(pos, nrm)| match grid {
+                None => (StoredTarget::Float(as_vec3(&pos), as_vec3(&nrm)), None),
                 Some((_, s)) => {
                     let (target, back, scale) = quantised_target(&pos, &nrm, s);
-                    read_back.data.extend(back);
-                    stored.push(target);
-                    for w in weights.iter_mut().skip(t).step_by(count) {
-                        *w *= scale;
-                    }
+                    (target, Some((back, scale)))
+                }
+            })
+            .collect();
+        let mut stored = Vec::with_capacity(count);
+        for (t, (target, quantised)) in converted.into_iter().enumerate() {
+            if let Some((back, scale)) = quantised {
+                read_back.data.extend(back);
+                for w in weights.iter_mut().skip(t).step_by(count) {
+                    *w *= scale;
                 }
             }
+            stored.push(target);
         }
         Targets {
             stored,
@@ -974,12 +983,17 @@ fn write_vertex_set(w: &mut Writer, parts: &Parts, indices: &[usize], hides: boo
         )
     };
     let hidden = parts.skin.filter(|_| hides).map(|s| &s.hidden);
-    let targets = parts
-        .targets
-        .stored
-        .iter()
-        .chain(hidden)
-        .map(|t| write_target(w, t, indices))
+    let stored: Vec<&StoredTarget> = parts.targets.stored.iter().chain(hidden).collect();
+    // Picked and encoded in parallel (meshopt's compression too), written
+    // in order.
+    let encoding = w.encoding;
+    let encoded: Vec<EncodedTarget> = stored
+        .par_iter()
+        .map(|t| encode_target(encoding, t, indices))
+        .collect();
+    let targets = encoded
+        .into_iter()
+        .map(|t| write_target(w, t, count))
         .collect();
     VertexSet {
         count,
@@ -991,28 +1005,43 @@ fn write_vertex_set(w: &mut Writer, parts: &Parts, indices: &[usize], hides: boo
     }
 }
 
-/// One morph target of the vertices at `indices`.
-fn write_target(w: &mut Writer, t: &StoredTarget, indices: &[usize]) -> Value {
-    let count = indices.len();
-    let (pa, na) = match t {
+/// One morph target of some vertices, encoded: positions (bytes, kind,
+/// bounds) and normals (bytes, kind).
+struct EncodedTarget {
+    position: (Vec<u8>, Attr, ([f64; 3], [f64; 3])),
+    normal: (Vec<u8>, Attr),
+}
+
+/// Target `t` of the vertices at `indices`, in the file's `encoding`.
+fn encode_target(encoding: AnimatedEncoding, t: &StoredTarget, indices: &[usize]) -> EncodedTarget {
+    match t {
         StoredTarget::Float(p, n) => {
             let (p, n) = (pick(p, indices), pick(n, indices));
-            (
-                w.attribute(count, vec3_bytes(&p), Attr::Vec3F32, Some(f32_bounds(&p))),
-                w.attribute(count, vec3_bytes(&n), Attr::Vec3F32, None),
-            )
+            EncodedTarget {
+                position: (vec3_bytes(&p), Attr::Vec3F32, f32_bounds(&p)),
+                normal: (vec3_bytes(&n), Attr::Vec3F32),
+            }
         }
         StoredTarget::Quantised(p, n) => {
             let (p, n) = (pick(p, indices), pick(n, indices));
-            let bounds = i16_bounds(&p);
-            let pb = meshopt_if(w.encoding, i16x4_bytes(&p), 8);
-            let nb = meshopt_if(w.encoding, i8x4_bytes(&n), 4);
-            (
-                w.attribute(count, pb, Attr::Vec3I16, Some(bounds)),
-                w.attribute(count, nb, Attr::Vec3I8, None),
-            )
+            EncodedTarget {
+                position: (
+                    meshopt_if(encoding, i16x4_bytes(&p), 8),
+                    Attr::Vec3I16,
+                    i16_bounds(&p),
+                ),
+                normal: (meshopt_if(encoding, i8x4_bytes(&n), 4), Attr::Vec3I8),
+            }
         }
-    };
+    }
+}
+
+/// The accessors of an encoded target of `count` vertices.
+fn write_target(w: &mut Writer, t: EncodedTarget, count: usize) -> Value {
+    let (pb, pk, bounds) = t.position;
+    let (nb, nk) = t.normal;
+    let pa = w.attribute(count, pb, pk, Some(bounds));
+    let na = w.attribute(count, nb, nk, None);
     json!({ "POSITION": pa, "NORMAL": na })
 }
 

@@ -188,6 +188,31 @@ pub(crate) struct Pass {
 /// with `weights` (`weights[j · count + k]`). Over a sample of the
 /// blocks (`every > 1`) the figures are lower bounds.
 pub(crate) fn max_errors(d: &Columns, targets: &Columns, weights: &[f32], pass: Pass) -> Vec<f32> {
+    worst_errors(d, targets, weights, pass, true)
+}
+
+/// The largest distance between a vertex of a frame of `d` and its
+/// reconstruction from all `count` columns of `targets`: the last figure
+/// of [`max_errors`], without measuring the counts below it (about half
+/// the work of the pass).
+pub(crate) fn max_error(d: &Columns, targets: &Columns, weights: &[f32], count: usize) -> f32 {
+    let all = Pass {
+        count,
+        upto: count,
+        every: 1,
+    };
+    worst_errors(d, targets, weights, all, false)[count]
+}
+
+/// [`max_errors`], for every target count when `each`, else for
+/// `pass.upto` alone (the others stay 0).
+fn worst_errors(
+    d: &Columns,
+    targets: &Columns,
+    weights: &[f32],
+    pass: Pass,
+    each: bool,
+) -> Vec<f32> {
     let vertices = d.rows / 3;
     let frames = d.count();
     let blocks: Vec<usize> = (0..vertices.div_ceil(BLOCK_VERTICES))
@@ -198,7 +223,7 @@ pub(crate) fn max_errors(d: &Columns, targets: &Columns, weights: &[f32], pass: 
         .map(|&b| {
             let start = b * BLOCK_VERTICES;
             let range = start..(start + BLOCK_VERTICES).min(vertices);
-            block_errors(d, targets, weights, pass, range, frames)
+            block_errors(d, targets, weights, (pass, each), range, frames)
         })
         .reduce(
             || vec![0f32; pass.upto + 1],
@@ -225,6 +250,12 @@ pub(crate) fn fewest_within(
     };
     let bounds = max_errors(d, targets, weights, sample);
     let guess = bounds.iter().position(|&e| e <= budget).unwrap_or(count);
+    // The sample's errors are lower bounds: when only all of the targets
+    // may be within budget, all of them are used, and only their error
+    // is left to measure.
+    if guess == count {
+        return (count, max_error(d, targets, weights, count));
+    }
     let mut upto = (guess + 2).min(count);
     loop {
         let errors = max_errors(
@@ -250,7 +281,7 @@ pub(crate) fn fewest_within(
 /// Vertices a [`block_errors`] step holds in registers.
 const LANES: usize = 16;
 
-/// [`max_errors`] (squared) over the vertices `range`. Each step takes
+/// [`worst_errors`] (squared) over the vertices `range`. Each step takes
 /// [`LANES`] vertices, keeps their residual in registers and subtracts one
 /// target after another for every frame, so each displacement is read
 /// once and every `K`'s distance comes out of the same pass.
@@ -258,7 +289,7 @@ fn block_errors(
     d: &Columns,
     targets: &Columns,
     weights: &[f32],
-    pass: Pass,
+    (pass, each): (Pass, bool),
     range: std::ops::Range<usize>,
     frames: usize,
 ) -> Vec<f32> {
@@ -284,11 +315,18 @@ fn block_errors(
         }
         for j in 0..frames {
             let mut r = [0, 1, 2].map(|a| lanes_of(&local_d, j, a, at));
-            keep_largest(&mut worst[0], &r);
             let frame_weights = &weights[j * count..j * count + upto];
-            for ((tk, &w), worst) in t.iter().zip(frame_weights).zip(&mut worst[1..]) {
-                subtract(&mut r, tk, w);
-                keep_largest(worst, &r);
+            if each {
+                keep_largest(&mut worst[0], &r);
+                for ((tk, &w), worst) in t.iter().zip(frame_weights).zip(&mut worst[1..]) {
+                    subtract(&mut r, tk, w);
+                    keep_largest(worst, &r);
+                }
+            } else {
+                for (tk, &w) in t.iter().zip(frame_weights) {
+                    subtract(&mut r, tk, w);
+                }
+                keep_largest(&mut worst[upto], &r);
             }
         }
     }
@@ -367,6 +405,32 @@ mod tests {
         let dot: f32 = t0.iter().zip(t1).map(|(a, b)| a * b).sum();
         let n0: f32 = t0.iter().map(|a| a * a).sum();
         assert!(dot.abs() < 1e-5 && (n0 - 1.0).abs() < 1e-4);
+    }
+
+    /// The error with every target alone is the last of the errors of
+    /// every count, on a motion that needs more targets than it keeps.
+    #[test]
+    fn the_error_with_every_target_is_the_last_of_every_count() {
+        let (vertices, frames) = (37, 9);
+        let mut d = Columns::new(3 * vertices, frames);
+        for j in 0..frames {
+            for i in 0..3 * vertices {
+                let x = (i * 31 + j * 17) as f32;
+                d.data
+                    .push((x * 0.37).sin() * (1.0 + (j as f32 * 0.5).cos()));
+            }
+        }
+        let p = principal(&d, &d.clone(), 4);
+        assert_eq!(p.count, 4);
+        let all = Pass {
+            count: p.count,
+            upto: p.count,
+            every: 1,
+        };
+        let each = max_errors(&d, &p.positions, &p.weights, all);
+        let last = max_error(&d, &p.positions, &p.weights, p.count);
+        assert!(each[4] > 0.0);
+        assert_eq!(last, each[4]);
     }
 
     #[test]

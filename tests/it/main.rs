@@ -15,6 +15,7 @@ mod plan_first;
 mod process;
 mod retention;
 mod scaleout;
+mod scripts;
 mod security;
 mod streaming;
 mod trees;

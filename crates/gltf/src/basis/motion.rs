@@ -284,7 +284,8 @@ const LANES: usize = 16;
 /// [`worst_errors`] (squared) over the vertices `range`. Each step takes
 /// [`LANES`] vertices, keeps their residual in registers and subtracts one
 /// target after another for every frame, so each displacement is read
-/// once and every `K`'s distance comes out of the same pass.
+/// once and every `K`'s distance comes out of the same pass (only the
+/// last `K`'s without `each`).
 fn block_errors(
     d: &Columns,
     targets: &Columns,

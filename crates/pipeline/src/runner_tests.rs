@@ -414,19 +414,26 @@ fn an_input_tree_analyses_once_and_keeps_the_result() {
     assert_eq!(*given.analysis().unwrap(), fresh);
 }
 
+/// A morph of `frames` frames with the random-leaf baseline, its sink and
+/// its `metrics.json`.
+fn random_leaf_morph(frames: u32) -> (MemorySink, serde_json::Value) {
+    let JobRequest::Morph(mut morph) = morph_request(frames, Outputs::default()) else {
+        unreachable!()
+    };
+    morph.options.leaves = treemorph_api::jobs::LeafAssignment::Random;
+    let mut sink = MemorySink::default();
+    run(&JobRequest::Morph(morph), &morph_trees(), &mut sink).unwrap();
+    let metrics = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    (sink, metrics)
+}
+
 #[test]
 fn metrics_count_floating_parts_on_the_meshes_written() {
     // `floating_leaves` is measured on the written meshes (treemorph-verify);
     // the construction's own count stays as `constructed_floating_leaves`.
     // The random-leaf baseline moves leaves on straight lines through the
     // air, which the written meshes show.
-    let JobRequest::Morph(mut morph) = morph_request(5, Outputs::default()) else {
-        unreachable!()
-    };
-    morph.options.leaves = treemorph_api::jobs::LeafAssignment::Random;
-    let mut sink = MemorySink::default();
-    run(&JobRequest::Morph(morph), &morph_trees(), &mut sink).unwrap();
-    let metrics: serde_json::Value = serde_json::from_slice(&sink.files["metrics.json"]).unwrap();
+    let (_, metrics) = random_leaf_morph(5);
     let measured = metrics["floating_leaves"].as_array().unwrap();
     let constructed = metrics["constructed_floating_leaves"].as_array().unwrap();
     assert_eq!((measured.len(), constructed.len()), (5, 5));
@@ -813,4 +820,34 @@ fn stored_plans_of_other_versions_or_damaged_are_refused() {
     let mut cut = plan.clone();
     cut.truncate(plan.len() - 10);
     assert!(matches!(read(&cut), Err(ReadError::Damaged(_))));
+}
+
+/// Each frame's measured counts are those of that frame's GLB as written,
+/// checked on its own: the check reads a copy of each frame's meshes while
+/// the next frame is made, and must never see a neighbour's.
+#[test]
+fn each_frames_measured_counts_are_those_of_its_own_glb() {
+    // Random leaves float on straight lines, by different counts per frame.
+    let (sink, metrics) = random_leaf_morph(6);
+    let measured: Vec<u64> = metrics["floating_leaves"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    let own: Vec<u64> = sink
+        .frames
+        .iter()
+        .map(|f| {
+            let meshes = treemorph_verify::read_glb(f.glb.as_ref().unwrap()).unwrap();
+            let options = treemorph_verify::PlausibilityOptions::default();
+            let report = treemorph_verify::Plausibility::of(&meshes.view(), &options).unwrap();
+            u64::from(report.floating_leaves)
+        })
+        .collect();
+    assert_eq!(measured, own);
+    assert!(
+        measured.windows(2).any(|w| w[0] != w[1]),
+        "the counts differ between frames, so a shifted copy would show: {measured:?}"
+    );
 }

@@ -233,18 +233,24 @@ impl FrameGlbWriter {
             }
         }
 
-        // Materials: 0 is the bark, then one per distinct leaf look.
+        // Materials: 0 is the bark, then one per distinct leaf look. A pair
+        // at step 0 looks like its first material alone: one material (and
+        // texture) for all of them.
+        let part_keys: Vec<[u32; 3]> = parts
+            .iter()
+            .map(|&(_, [a, b, q])| {
+                if a == b || q == 0 {
+                    [a, a, 0]
+                } else {
+                    [a, b, q]
+                }
+            })
+            .collect();
+        self.looks.prepare(bark_step, &part_keys);
         let mut looks: Vec<Look> = vec![self.looks.bark(bark_step).clone()];
         let mut keys: Vec<[u32; 3]> = Vec::new();
         let mut primitive_materials = Vec::with_capacity(parts.len());
-        for &(_, [a, b, q]) in &parts {
-            // A pair at step 0 looks like its first material alone: one
-            // material (and texture) for all of them.
-            let key = if a == b || q == 0 {
-                [a, a, 0]
-            } else {
-                [a, b, q]
-            };
+        for key in part_keys {
             let index = match keys.iter().position(|k| *k == key) {
                 Some(i) => i,
                 None => {

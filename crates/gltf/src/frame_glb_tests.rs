@@ -289,3 +289,35 @@ fn bad_input_is_the_callers_mistake() {
         assert!(matches!(writer.write(&f), Err(EncodeError::Frame(_))));
     }
 }
+
+/// A frame written for one instant blends a few dozen looks at once, in
+/// parallel (`Looks::prepare`): they are cached under the keys a writer
+/// asks for, once each, and equal the looks made one at a time.
+#[test]
+fn looks_prepared_together_equal_looks_made_one_at_a_time() {
+    let (mut topology, frame) = row(&[0.3, 0.6]);
+    topology.bark[0].texture = Some(Drawn::Palmate.texture());
+    topology.bark[1].texture = Some(Drawn::Round.texture());
+    let meshes =
+        crate::frames::FrameMeshes::new(&topology, &frame.radii, &MeshOptions::default()).unwrap();
+    let keys = [
+        [0, 1, 5],
+        [0, 1, 17],
+        [0, 2, 3],
+        [2, 2, 9],
+        [0, 1, 99],
+        [0, 1, 5],
+    ];
+    let mut together = crate::frames::Looks::new(&topology, meshes.leaves(), 64);
+    together.prepare(20, &keys);
+    // Five distinct keys ([2, 2, q] is [2, 2, 0]; 99 is step 64) and one
+    // bark.
+    assert_eq!(together.cached(), (5, 1));
+    let mut alone = crate::frames::Looks::new(&topology, meshes.leaves(), 64);
+    for [a, b, q] in keys {
+        assert_eq!(together.leaf_blend(a, b, q), alone.leaf_blend(a, b, q));
+    }
+    assert_eq!(together.bark(20), alone.bark(20));
+    assert!(together.bark(20).texture.is_some(), "a blended bark");
+    assert_eq!(together.cached(), (5, 1), "nothing computed twice");
+}

@@ -13,6 +13,8 @@
 
 use std::collections::HashMap;
 
+use rayon::prelude::*;
+
 use thiserror::Error;
 use treemorph_api::delta::DeltaError;
 use treemorph_tree::frame::FrameMismatch;
@@ -276,98 +278,156 @@ impl Looks {
         }
     }
 
+    /// The cache key of a leaf blending `a → b` at step `q`.
+    fn leaf_key(&self, a: u32, b: u32, q: u32) -> (u32, u32, u32) {
+        if a == b {
+            (a, a, 0)
+        } else {
+            (a, b, q.min(self.steps))
+        }
+    }
+
+    /// The cache key of the bark at step `q`.
+    fn bark_key(&self, q: u32) -> u32 {
+        if self.bark[0] == self.bark[1] {
+            0
+        } else {
+            q.min(self.steps)
+        }
+    }
+
+    /// Computes the looks of the leaf `keys` (`[a, b, q]`, as
+    /// [`Looks::leaf_blend`] takes them) and of the bark at `bark_step`
+    /// that are not cached yet, in parallel. Each blends two textures and
+    /// encodes a PNG, about 2 ms apiece; a writer made for one frame (an
+    /// instant rendered on request) needs a few dozen at once. The looks
+    /// are the same whichever order they are computed in.
+    pub(crate) fn prepare(&mut self, bark_step: u32, keys: &[[u32; 3]]) {
+        let mut leaves: Vec<(u32, u32, u32)> = keys
+            .iter()
+            .map(|&[a, b, q]| self.leaf_key(a, b, q))
+            .filter(|k| !self.leaf_cache.contains_key(k))
+            .collect();
+        leaves.sort_unstable();
+        leaves.dedup();
+        let bark = Some(self.bark_key(bark_step)).filter(|q| !self.bark_cache.contains_key(q));
+        let this = &*self;
+        let (bark_look, leaf_looks) = rayon::join(
+            || bark.map(|q| this.bark_look(q)),
+            || {
+                leaves
+                    .par_iter()
+                    .map(|&k| this.leaf_look(k))
+                    .collect::<Vec<Look>>()
+            },
+        );
+        if let (Some(q), Some(look)) = (bark, bark_look) {
+            self.bark_cache.insert(q, look);
+        }
+        self.leaf_cache.extend(leaves.into_iter().zip(leaf_looks));
+    }
+
+    /// How many leaf and bark looks are cached.
+    #[cfg(test)]
+    pub(crate) fn cached(&self) -> (usize, usize) {
+        (self.leaf_cache.len(), self.bark_cache.len())
+    }
+
     /// The look of a leaf blending materials `a → b` at step `q`, in the
     /// texture space of `a`'s contour: `a` itself at step 0 or when
     /// `a == b`.
     pub(crate) fn leaf_blend(&mut self, a: u32, b: u32, q: u32) -> &Look {
-        let q = q.min(self.steps);
-        let key = if a == b { (a, a, 0) } else { (a, b, q) };
+        let key = self.leaf_key(a, b, q);
         if !self.leaf_cache.contains_key(&key) {
-            let look = if key.2 == 0 {
-                self.leaf(a)
-            } else {
-                let s = q as f32 / self.steps as f32;
-                let (ma, mb) = (&self.materials[a as usize], &self.materials[b as usize]);
-                let name = format!("{}→{}@{:.3}", ma.name, mb.name, s);
-                let (ia, ib) = (&self.images[a as usize], &self.images[b as usize]);
-                if ia.is_none() && ib.is_none() {
-                    Look {
-                        name,
-                        color: lerp4(ma.color, mb.color, s),
-                        texture: None,
-                    }
-                } else {
-                    let image = blend_textures(
-                        BlendSource {
-                            image: ia.as_ref(),
-                            contour: &self.contours[a as usize],
-                            color: ma.color,
-                        },
-                        BlendSource {
-                            image: ib.as_ref(),
-                            contour: &self.contours[b as usize],
-                            color: mb.color,
-                        },
-                        s,
-                    );
-                    Look {
-                        name,
-                        color: [1.0; 4],
-                        texture: Some(Texture::from_rgba(&image)),
-                    }
-                }
-            };
+            let look = self.leaf_look(key);
             self.leaf_cache.insert(key, look);
         }
         &self.leaf_cache[&key]
     }
 
+    /// The look of leaf key `(a, b, q)` ([`Looks::leaf_key`]), computed.
+    fn leaf_look(&self, (a, b, q): (u32, u32, u32)) -> Look {
+        if q == 0 {
+            return self.leaf(a);
+        }
+        let s = q as f32 / self.steps as f32;
+        let (ma, mb) = (&self.materials[a as usize], &self.materials[b as usize]);
+        let name = format!("{}→{}@{:.3}", ma.name, mb.name, s);
+        let (ia, ib) = (&self.images[a as usize], &self.images[b as usize]);
+        if ia.is_none() && ib.is_none() {
+            return Look {
+                name,
+                color: lerp4(ma.color, mb.color, s),
+                texture: None,
+            };
+        }
+        let image = blend_textures(
+            BlendSource {
+                image: ia.as_ref(),
+                contour: &self.contours[a as usize],
+                color: ma.color,
+            },
+            BlendSource {
+                image: ib.as_ref(),
+                contour: &self.contours[b as usize],
+                color: mb.color,
+            },
+            s,
+        );
+        Look {
+            name,
+            color: [1.0; 4],
+            texture: Some(Texture::from_rgba(&image)),
+        }
+    }
+
     /// The bark at step `q` between the two barks.
     pub(crate) fn bark(&mut self, q: u32) -> &Look {
-        let q = if self.bark[0] == self.bark[1] {
-            0
-        } else {
-            q.min(self.steps)
-        };
+        let q = self.bark_key(q);
         if !self.bark_cache.contains_key(&q) {
-            let s = q as f32 / self.steps as f32;
-            let [b0, b1] = &self.bark;
-            let look = if q == 0 || q == self.steps {
-                let b = if q == 0 { b0 } else { b1 };
-                Look {
-                    name: "bark".into(),
-                    color: b.color,
-                    texture: b.texture.clone(),
-                }
-            } else if b0.texture.is_none() && b1.texture.is_none() {
-                Look {
-                    name: "bark".into(),
-                    color: lerp4(b0.color, b1.color, s),
-                    texture: None,
-                }
-            } else {
-                let image = blend_textures(
-                    BlendSource {
-                        image: self.bark_images[0].as_ref(),
-                        contour: &self.rectangle,
-                        color: b0.color,
-                    },
-                    BlendSource {
-                        image: self.bark_images[1].as_ref(),
-                        contour: &self.rectangle,
-                        color: b1.color,
-                    },
-                    s,
-                );
-                Look {
-                    name: "bark".into(),
-                    color: [1.0; 4],
-                    texture: Some(Texture::from_rgba(&image)),
-                }
-            };
+            let look = self.bark_look(q);
             self.bark_cache.insert(q, look);
         }
         &self.bark_cache[&q]
+    }
+
+    /// The bark at key `q` ([`Looks::bark_key`]), computed.
+    fn bark_look(&self, q: u32) -> Look {
+        let s = q as f32 / self.steps as f32;
+        let [b0, b1] = &self.bark;
+        if q == 0 || q == self.steps {
+            let b = if q == 0 { b0 } else { b1 };
+            return Look {
+                name: "bark".into(),
+                color: b.color,
+                texture: b.texture.clone(),
+            };
+        }
+        if b0.texture.is_none() && b1.texture.is_none() {
+            return Look {
+                name: "bark".into(),
+                color: lerp4(b0.color, b1.color, s),
+                texture: None,
+            };
+        }
+        let image = blend_textures(
+            BlendSource {
+                image: self.bark_images[0].as_ref(),
+                contour: &self.rectangle,
+                color: b0.color,
+            },
+            BlendSource {
+                image: self.bark_images[1].as_ref(),
+                contour: &self.rectangle,
+                color: b1.color,
+            },
+            s,
+        );
+        Look {
+            name: "bark".into(),
+            color: [1.0; 4],
+            texture: Some(Texture::from_rgba(&image)),
+        }
     }
 }
 

@@ -64,3 +64,17 @@ for pass in first_render_ms cached_ms; do
   done
   echo "$pass:$row"
 done
+
+# A scrubbed timeline: ten other instants one after another, as the web
+# viewer asks for them between received frames (time to the whole body).
+scrub() {
+  local times=() i t s
+  for i in 1 2 3 4 5 6 7 8 9 10; do
+    t=$(awk "BEGIN{x = 0.1 + $i * 0.0731; printf \"%.4f\", x - int(x)}")
+    s=$(curl -s -o /dev/null -w '%{time_total}' "$BASE/v1/jobs/$J/${1//T/$t}")
+    times+=($(awk "BEGIN{printf \"%.0f\", $s * 1000}"))
+  done
+  echo "$(median "${times[@]}") (all: ${times[*]})"
+}
+echo "scrub_frame_glb_ms: $(scrub 'frame.glb?t=T')"
+echo "scrub_stream_record_ms: $(scrub 'stream?t=T&header=false')"

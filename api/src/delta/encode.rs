@@ -60,6 +60,9 @@ pub struct Encoder {
     compressor: Option<zstd::bulk::Compressor<'static>>,
     /// The decoder's grid coordinates: `state[mesh][axis][vertex]`.
     state: Vec<[Vec<i32>; 3]>,
+    /// Those of the header's base positions, where [`Encoder::restart`]
+    /// starts again.
+    base: Vec<[Vec<i32>; 3]>,
     /// The frame being encoded, same layout; swapped with `state` on success.
     next: Vec<[Vec<i32>; 3]>,
     /// One per worker thread (the first is the calling thread's).
@@ -131,6 +134,7 @@ impl Encoder {
         };
         Ok(Encoder {
             next: state.clone(),
+            base: state.clone(),
             state,
             header,
             header_bytes,
@@ -159,6 +163,23 @@ impl Encoder {
     /// the grid).
     pub fn header(&self) -> &StreamHeader {
         &self.header
+    }
+
+    /// Starts the same stream again after its header: the next frame is
+    /// frame 0, encoded against the header's base positions, so
+    /// [`header_bytes`](Self::header_bytes) followed by what is encoded
+    /// from now on is the stream a new encoder of the same header would
+    /// write. A renderer of one instant at a time of one animation (the
+    /// service's `stream?t=`) makes the header — its meshes, textures and
+    /// compression — once this way.
+    pub fn restart(&mut self) {
+        for (state, base) in self.state.iter_mut().zip(&self.base) {
+            for (axis, from) in state.iter_mut().zip(base) {
+                axis.clone_from(from);
+            }
+        }
+        self.next_index = 0;
+        self.finished = false;
     }
 
     /// Index the next [`encode_frame`](Self::encode_frame) call must use.

@@ -115,6 +115,39 @@ fn decoding_reproduces_the_encoders_tracked_state_exactly() {
     }
 }
 
+/// A restarted encoder writes, after the header, what a new encoder of
+/// the same header writes, whatever it encoded before.
+#[test]
+fn a_restarted_encoder_writes_what_a_new_one_writes() {
+    // A header that announces no frame count, so streams of any length end.
+    let s = Synthetic::new(30, 0);
+    let options = EncoderOptions::default();
+    let encode = |encoder: &mut Encoder, frames: &[u32]| {
+        let mut out = encoder.header_bytes().to_vec();
+        let mut p = Vec::new();
+        for (index, &i) in frames.iter().enumerate() {
+            s.positions(time(i, 8), &mut p);
+            let blend = i as f32 / 8.0;
+            encoder
+                .encode_frame(index as u32, time(i, 8), &slices(&p), blend, &mut out)
+                .unwrap();
+        }
+        out
+    };
+    let mut reused = Encoder::new(s.header().clone(), &options).unwrap();
+    let mut first = encode(&mut reused, &[7, 3, 5]);
+    reused.finish(&mut first).unwrap();
+    reused.restart();
+    let mut again = encode(&mut reused, &[2, 6]);
+    reused.finish(&mut again).unwrap();
+    let mut new = Encoder::new(s.header().clone(), &options).unwrap();
+    let mut fresh = encode(&mut new, &[2, 6]);
+    new.finish(&mut fresh).unwrap();
+    assert!(again == fresh, "a restarted encoder wrote other bytes");
+    let (_, frames) = decode_all(&again, &DecoderOptions::default()).unwrap();
+    assert_eq!(frames.len(), 2);
+}
+
 #[test]
 fn the_base_positions_are_snapped_within_the_error_bound() {
     let s = Synthetic::new(20, 1);

@@ -218,6 +218,22 @@ impl DeltaStreamWriter {
         Ok(())
     }
 
+    /// Starts the same stream again ([`Encoder::restart`]): appends the
+    /// header written first to `out` again, and the next frame is encoded
+    /// against it, as after [`write_header`](Self::write_header). Its
+    /// meshes, textures and compression are not made again: a renderer of
+    /// one-frame streams of one animation (the service's `stream?t=`) keeps
+    /// one writer. Errors: [`EncodeError::Usage`] before a header.
+    pub fn restart(&mut self, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+        let encoder = self
+            .encoder
+            .as_mut()
+            .ok_or_else(|| EncodeError::Usage("a delta stream restarts after its header".into()))?;
+        encoder.restart();
+        out.extend_from_slice(encoder.header_bytes());
+        Ok(())
+    }
+
     /// The meshers.
     pub fn meshes(&self) -> &FrameMeshes {
         &self.meshes

@@ -214,3 +214,51 @@ fn misuse_is_refused() {
         Err(EncodeError::Frame(_))
     ));
 }
+
+/// A restarted writer writes the header it wrote first, then what a new
+/// writer of the same first frame writes: one-frame streams of one
+/// sequence, rendered in any order, are the bytes of fresh writers.
+#[test]
+fn a_restarted_writer_writes_what_a_new_one_writes() {
+    let sway = sway(5);
+    let options = StreamOptions::default().with_frame_count(1);
+    let new = || {
+        let mut w = DeltaStreamWriter::new(
+            sway.topology(),
+            sway.reference_radii(),
+            sway.bounds(),
+            &options,
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        w.write_header(&sway.frame(0), &mut out).unwrap();
+        (w, out)
+    };
+    let one = |w: &mut DeltaStreamWriter, mut out: Vec<u8>, i: usize| {
+        w.write_frame(&sway.frame(i), &mut out).unwrap();
+        w.finish(&mut out).unwrap();
+        out
+    };
+    let (mut kept, header) = new();
+    let mut reused = vec![one(&mut kept, header, 4)];
+    for i in [1, 3, 4] {
+        let mut out = Vec::new();
+        kept.restart(&mut out).unwrap();
+        reused.push(one(&mut kept, out, i));
+    }
+    for (got, i) in reused.iter().zip([4, 1, 3, 4]) {
+        let (w, out) = &mut new();
+        assert!(*got == one(w, std::mem::take(out), i), "instant {i}");
+    }
+    let mut fresh = DeltaStreamWriter::new(
+        sway.topology(),
+        sway.reference_radii(),
+        sway.bounds(),
+        &options,
+    )
+    .unwrap();
+    assert!(matches!(
+        fresh.restart(&mut Vec::new()),
+        Err(EncodeError::Usage(_))
+    ));
+}

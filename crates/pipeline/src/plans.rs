@@ -4,7 +4,10 @@
 //! (about 95 of 130 ms for a 5,000-branch morph), so the plan, and the
 //! probes that fix the meshes' side counts and the stream's grid, are
 //! kept. A run leaves its plan and probes here too: the first instant
-//! asked of a job this process just ran costs a frame, not a plan.
+//! asked of a job this process just ran costs a frame, not a plan. The
+//! writers of instants ([`Writers`]) are kept with the plans of the
+//! [`WRITERS_KEPT`] most recently used entries: they hold a frame's meshes
+//! (tens of MB for a 20,000-chain morph), so older entries drop them.
 //!
 //! An entry matches a job by its plan's part of the spec (trees and
 //! pipeline options, not frames or outputs) and either by the key of the
@@ -21,6 +24,8 @@
 
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
+use treemorph_gltf::frame_glb::FrameGlbWriter;
+use treemorph_gltf::stream::DeltaStreamWriter;
 use treemorph_morph::MorphPlan;
 use treemorph_sketch::SketchPlan;
 
@@ -34,6 +39,10 @@ pub(crate) const CAPACITY: usize = 4;
 /// hundred bytes per node (a default 5,000-branch morph has 37,000 nodes,
 /// a 20,000-chain one 102,000), so this bounds the cache near 100 MB.
 pub(crate) const NODE_BUDGET: usize = 500_000;
+
+/// Entries, most recently used first, that keep their [`Writers`]: a
+/// couple of users scrubbing at once.
+pub(crate) const WRITERS_KEPT: usize = 2;
 
 /// A job's plan.
 // One per kept entry, inside an `Arc`: the variants' sizes never move.
@@ -53,12 +62,68 @@ impl Planned {
     }
 }
 
-/// A plan with what it was made from, and its probes once sampled.
+/// A plan with what it was made from, its probes once sampled, and the
+/// writers of its instants once used.
 pub(crate) struct Prepared {
     spec: JobSpec,
     of: Owned,
     pub plan: Planned,
     pub probed: OnceLock<Probed>,
+    pub writers: Writers,
+}
+
+/// The writers of a plan's instants, kept between requests. Every
+/// instant of a job has the same meshers, the same first frame (which
+/// fixes the bark's texture coordinates) and the same one-frame stream
+/// header, with the job's blended textures in it; making them was most
+/// of an instant's cost (a 4,515-chain morph's `stream?t=`: 28 of 41 ms
+/// for the header, 5 for the writer). A frame GLB writer renders any
+/// frame after any other and keeps the looks it blended; a stream writer
+/// restarts after its header ([`DeltaStreamWriter::restart`]). So the
+/// bytes are those of new writers. One of each is kept: a request that
+/// finds the slot empty (another is rendering with it) makes its own and
+/// keeps it if the slot is free when it is done.
+#[derive(Default)]
+pub(crate) struct Writers {
+    pub glb: Slot<FrameGlbWriter>,
+    pub stream: Slot<DeltaStreamWriter>,
+}
+
+/// One kept value, lent to one user at a time.
+pub(crate) struct Slot<T>(Mutex<Option<T>>);
+
+impl<T> Default for Slot<T> {
+    fn default() -> Self {
+        Slot(Mutex::new(None))
+    }
+}
+
+impl<T> Slot<T> {
+    /// The kept value, if no one else has it.
+    pub fn take(&self) -> Option<T> {
+        self.lock().take()
+    }
+
+    /// Keeps `value` unless another was kept meanwhile.
+    pub fn keep(&self, value: T) {
+        self.lock().get_or_insert(value);
+    }
+
+    /// Whether a value is kept.
+    #[cfg(test)]
+    fn holds(&self) -> bool {
+        self.lock().is_some()
+    }
+
+    /// Drops the kept value.
+    fn clear(&self) {
+        self.lock().take();
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Option<T>> {
+        // A panic while holding the lock leaves a valid Option.
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
 }
 
 /// Whether two jobs have the same plan: the same trees and pipeline
@@ -138,6 +203,15 @@ impl Plans {
         self.lock().len()
     }
 
+    /// Entries that keep a writer.
+    #[cfg(test)]
+    pub fn with_writers(&self) -> usize {
+        self.lock()
+            .iter()
+            .filter(|e| e.writers.glb.holds() || e.writers.stream.holds())
+            .count()
+    }
+
     /// The plan of `spec` kept under `of`, if any (it becomes the most
     /// recently used).
     pub fn get(&self, spec: &JobSpec, of: PlanOf<'_>) -> Option<Arc<Prepared>> {
@@ -147,6 +221,7 @@ impl Plans {
             .position(|e| same_plan(&e.spec, spec) && e.of.matches(of))?;
         let entry = entries.remove(at);
         entries.insert(0, entry.clone());
+        drop_older_writers(&entries);
         Some(entry)
     }
 
@@ -164,6 +239,7 @@ impl Plans {
             of: of.into(),
             plan,
             probed: probed.map(OnceLock::from).unwrap_or_default(),
+            writers: Writers::default(),
         });
         let mut entries = self.lock();
         // A plan of the same job from reloaded trees replaces the older;
@@ -184,6 +260,16 @@ impl Plans {
             })
             .count();
         entries.truncate(keep.max(1));
+        drop_older_writers(&entries);
         entry
+    }
+}
+
+/// Frees the writers of the entries past the [`WRITERS_KEPT`] most
+/// recently used.
+fn drop_older_writers(entries: &[Arc<Prepared>]) {
+    for e in entries.iter().skip(WRITERS_KEPT) {
+        e.writers.glb.clear();
+        e.writers.stream.clear();
     }
 }

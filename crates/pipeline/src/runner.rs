@@ -62,7 +62,7 @@ use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
 use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
 
-use crate::plans::{PlanOf, Planned, Plans, Prepared};
+use crate::plans::{PlanOf, Planned, Plans, Prepared, Writers};
 use crate::{
     FrameOutput, InputTree, JobError, JobInput, JobOutcome, JobSink, JobSpec, MorphSpec,
     RenderSpec, Runner, SinkError, SketchSpec, StreamPart, stage,
@@ -154,17 +154,17 @@ impl PipelineRunner {
     ) -> Result<Vec<u8>, JobError> {
         let t = crate::check_instant(t)?;
         let prepared = self.prepared(input, None)?;
-        let probed = &prepared.probed;
+        let kept = (&prepared.probed, &prepared.writers);
         match &prepared.plan {
             Planned::Morph(plan) => {
                 let mut morpher = Morpher::new(plan);
                 let eval = |t, frame: &mut Frame| morpher.morph(t, frame);
-                instant(plan.topology(), eval, probed, t, format)
+                instant(plan.topology(), eval, kept, t, format)
             }
             Planned::Sketch(plan) => {
                 let mut sketcher = Sketcher::new(plan);
                 let eval = |t, frame: &mut Frame| sketcher.deform(t, frame);
-                instant(plan.topology(), eval, probed, t, format)
+                instant(plan.topology(), eval, kept, t, format)
             }
         }
     }
@@ -301,41 +301,63 @@ fn plan_sketch(
 fn instant(
     topology: &FrameTopology,
     mut eval: impl FnMut(f32, &mut Frame),
-    probed: &OnceLock<Probed>,
+    (probed, writers): (&OnceLock<Probed>, &Writers),
     t: f32,
     format: InstantFormat,
 ) -> Result<Vec<u8>, JobError> {
     let mut frame = Frame::default();
     let probed = probed.get_or_init(|| probe(&mut eval, &mut frame));
-    let mut first = Frame::default();
-    eval(0.0, &mut first);
     eval(t, &mut frame);
+    let mut first = || {
+        let mut first = Frame::default();
+        eval(0.0, &mut first);
+        first
+    };
     match format {
         InstantFormat::Glb => {
-            let options = FrameGlbOptions::default();
-            let mut writer =
-                FrameGlbWriter::new(topology, &probed.radii, &options).map_err(encode)?;
-            writer.set_uv_frame(&first).map_err(encode)?;
-            writer.write(&frame).map_err(encode)
+            let mut writer = match writers.glb.take() {
+                Some(kept) => kept,
+                None => {
+                    let options = FrameGlbOptions::default();
+                    let mut writer =
+                        FrameGlbWriter::new(topology, &probed.radii, &options).map_err(encode)?;
+                    writer.set_uv_frame(&first()).map_err(encode)?;
+                    writer
+                }
+            };
+            let glb = writer.write(&frame).map_err(encode)?;
+            writers.glb.keep(writer);
+            Ok(glb)
         }
         InstantFormat::Stream(part) => {
-            // One instant at a time, fetched while the user waits: bytes
-            // matter more than the millisecond zstd takes.
-            let options = StreamOptions::default()
-                .with_frame_count(1)
-                .with_encoder(EncoderOptions::default());
-            let mut writer =
-                DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
-                    .map_err(encode)?;
             let mut out = Vec::new();
-            writer.write_header(&first, &mut out).map_err(encode)?;
+            let mut writer = match writers.stream.take() {
+                Some(mut kept) => {
+                    kept.restart(&mut out).map_err(encode)?;
+                    kept
+                }
+                None => {
+                    // One instant at a time, fetched while the user waits:
+                    // bytes matter more than the millisecond zstd takes.
+                    let options = StreamOptions::default()
+                        .with_frame_count(1)
+                        .with_encoder(EncoderOptions::default());
+                    let mut writer =
+                        DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
+                            .map_err(encode)?;
+                    writer.write_header(&first(), &mut out).map_err(encode)?;
+                    writer
+                }
+            };
             let header = out.len();
             writer.write_frame(&frame, &mut out).map_err(encode)?;
+            if part == StreamPart::Whole {
+                writer.finish(&mut out).map_err(encode)?;
+            }
+            writers.stream.keep(writer);
             if part == StreamPart::Frame {
                 out.drain(..header);
-                return Ok(out);
             }
-            writer.finish(&mut out).map_err(encode)?;
             Ok(out)
         }
     }

@@ -211,6 +211,22 @@ fn heart_request(frames: u32) -> JobRequest {
     })
 }
 
+/// A morph of the small preset trees and a sketch of a maple into the
+/// heart, of `frames` frames, with their trees.
+fn morph_and_sketch_jobs(frames: u32) -> [(JobSpec, HashMap<String, Arc<InputTree>>); 2] {
+    let parse = |request: &JobRequest| JobSpec::parse(request, &Limits::default()).unwrap();
+    [
+        (
+            parse(&morph_request(frames, Outputs::default())),
+            morph_trees(),
+        ),
+        (
+            parse(&heart_request(frames)),
+            HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]),
+        ),
+    ]
+}
+
 /// Every frame of `metrics.json` counts 0 floating branches and leaves,
 /// and its crossings, none at the ends (which define them).
 fn assert_no_floating(metrics: &Value) {
@@ -450,14 +466,7 @@ fn metrics_count_floating_parts_on_the_meshes_written() {
 #[test]
 fn a_frame_at_an_instant_is_the_jobs_frame_there() {
     let frames = 5;
-    for (request, trees) in [
-        (morph_request(frames, Outputs::default()), morph_trees()),
-        (
-            heart_request(frames),
-            HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]),
-        ),
-    ] {
-        let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+    for (spec, trees) in morph_and_sketch_jobs(frames) {
         let input = JobInput {
             spec: &spec,
             trees: &trees,
@@ -612,6 +621,33 @@ fn instants_render_the_same_from_a_kept_plan_or_a_new_one() {
     assert!(part(&ran, StreamPart::Frame) == part(&fresh, StreamPart::Frame));
 }
 
+/// Instants rendered one after another by one runner, which keeps its
+/// writers between them, are the bytes of each instant rendered by a new
+/// runner, whatever came before (morph and sketch, GLB and streams).
+#[test]
+fn instants_in_any_order_are_those_of_new_runners() {
+    for (spec, trees) in morph_and_sketch_jobs(5) {
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+            stored_plan: None,
+        };
+        let kept = PipelineRunner::default();
+        for t in [0.375, 0.9, 0.0, 0.375, 1.0] {
+            let fresh = PipelineRunner::default();
+            let (a, b) = (kept.frame_at(&input, t), fresh.frame_at(&input, t));
+            assert!(a.unwrap() == b.unwrap(), "frame.glb at {t}");
+            for part in [StreamPart::Frame, StreamPart::Whole, StreamPart::Frame] {
+                let (a, b) = (
+                    kept.stream_at(&input, t, part),
+                    fresh.stream_at(&input, t, part),
+                );
+                assert!(a.unwrap() == b.unwrap(), "stream at {t}, {part:?}");
+            }
+        }
+    }
+}
+
 /// A one-instant stream has the job's header but for its frame count, and
 /// its frame record alone decodes after the job's own header to the job's
 /// frame at that instant.
@@ -664,7 +700,7 @@ fn an_instants_frame_record_decodes_after_the_jobs_header() {
 /// `plans::CAPACITY`, and one entry per plan (jobs that differ only in
 /// frames share it).
 #[test]
-fn the_plan_cache_keeps_the_latest_jobs() {
+fn the_plan_cache_keeps_the_latest_jobs_and_their_writers() {
     let [a, b] = ["a", "b"].map(|k| morph_trees()[k].clone());
     let runner = PipelineRunner::default();
     for k in 0..6 {
@@ -685,6 +721,9 @@ fn the_plan_cache_keeps_the_latest_jobs() {
             runner.frame_at(&input, 0.5).unwrap();
         }
         assert_eq!(runner.plans.len(), (k + 1).min(crate::plans::CAPACITY));
+        // Only the most recently used keep the writers of their instants.
+        let writers = (k + 1).min(crate::plans::WRITERS_KEPT);
+        assert_eq!(runner.plans.with_writers(), writers);
     }
 }
 
@@ -707,14 +746,7 @@ fn stored_plan_of(input: &JobInput<'_>) -> Vec<u8> {
 /// once, then kept under its key.
 #[test]
 fn a_stored_plan_renders_the_same_bytes() {
-    for (request, trees) in [
-        (morph_request(5, Outputs::default()), morph_trees()),
-        (
-            heart_request(5),
-            HashMap::from([("t".to_owned(), tree(Preset::Maple, 3, 300))]),
-        ),
-    ] {
-        let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+    for (spec, trees) in morph_and_sketch_jobs(5) {
         let input = JobInput {
             spec: &spec,
             trees: &trees,

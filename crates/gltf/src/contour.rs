@@ -691,35 +691,64 @@ impl BlendSource<'_> {
 /// each texture on its own outline. The result has the larger of the two
 /// widths and heights (the smaller image is resampled bilinearly); colour
 /// factors are baked in, so the material using it needs a white factor.
+/// [`BlendLayers`] makes many blends of one pair.
 pub fn blend_textures(a: BlendSource<'_>, b: BlendSource<'_>, s: f32) -> RgbaImage {
-    let s = if s.is_finite() {
-        s.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let (wa, ha) = a.size();
-    let (wb, hb) = b.size();
-    let (w, h) = (wa.max(wb), ha.max(hb));
-    let map = (s > 0.0).then(|| FanMap::new(a.contour, b.contour));
-    let mut pixels = Vec::with_capacity((w * h * 4) as usize);
-    for y in 0..h {
-        for x in 0..w {
-            let p = Vec2::new(
-                (x as f32 + 0.5) / w as f32 - 0.5,
-                1.0 - (y as f32 + 0.5) / h as f32,
-            );
-            let ca = if s < 1.0 { a.sample(p) } else { [0.0; 4] };
-            let cb = match &map {
-                Some(m) => b.sample(m.map(p)),
-                None => [0.0; 4],
-            };
+    BlendLayers::new(a, b).blend(s)
+}
+
+/// The two layers every blend of textures `a` and `b` mixes
+/// ([`blend_textures`]): per texel of the result, `a` sampled at it and `b`
+/// sampled where the contours map it. Neither depends on the blend
+/// factor, and sampling (bilinear, through the fan map's angle search) is
+/// most of a blend's cost, so the blends of one pair at many factors (the
+/// leaves of one frame, each at its own step) sample both textures once.
+pub struct BlendLayers {
+    width: u32,
+    height: u32,
+    /// `(a, b)` per texel, row by row.
+    texels: Vec<([f32; 4], [f32; 4])>,
+}
+
+impl BlendLayers {
+    /// Samples both layers.
+    pub fn new(a: BlendSource<'_>, b: BlendSource<'_>) -> BlendLayers {
+        let (wa, ha) = a.size();
+        let (wb, hb) = b.size();
+        let (width, height) = (wa.max(wb), ha.max(hb));
+        let map = FanMap::new(a.contour, b.contour);
+        let mut texels = Vec::with_capacity((width * height) as usize);
+        for y in 0..height {
+            for x in 0..width {
+                let p = Vec2::new(
+                    (x as f32 + 0.5) / width as f32 - 0.5,
+                    1.0 - (y as f32 + 0.5) / height as f32,
+                );
+                texels.push((a.sample(p), b.sample(map.map(p))));
+            }
+        }
+        BlendLayers {
+            width,
+            height,
+            texels,
+        }
+    }
+
+    /// The blend at factor `s` (clamped to [0, 1]; not finite: 0).
+    pub fn blend(&self, s: f32) -> RgbaImage {
+        let s = if s.is_finite() {
+            s.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let mut pixels = Vec::with_capacity(self.texels.len() * 4);
+        for (ca, cb) in &self.texels {
             for k in 0..4 {
                 let v = ca[k] * (1.0 - s) + cb[k] * s;
                 pixels.push((v.clamp(0.0, 1.0) * 255.0).round() as u8);
             }
         }
+        RgbaImage::new(self.width, self.height, pixels).expect("the buffer matches the size")
     }
-    RgbaImage::new(w, h, pixels).expect("the buffer matches the size")
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ use treemorph_api::delta::DeltaError;
 use treemorph_tree::frame::FrameMismatch;
 use treemorph_tree::{Bark, Frame, FrameTopology, LeafMaterial, RgbaImage, Texture};
 
-use crate::contour::{BlendSource, LeafContour, blend_textures};
+use crate::contour::{BlendLayers, BlendSource, LeafContour, blend_textures};
 use crate::mesh::{BranchMesher, LeafMesher, LeafShape, MeshBuffers, MeshError, MeshOptions};
 
 /// Why a frame encoder could not be built or could not encode a frame.
@@ -298,10 +298,12 @@ impl Looks {
 
     /// Computes the looks of the leaf `keys` (`[a, b, q]`, as
     /// [`Looks::leaf_blend`] takes them) and of the bark at `bark_step`
-    /// that are not cached yet, in parallel. Each blends two textures and
-    /// encodes a PNG, about 2 ms apiece; a writer made for one frame (an
-    /// instant rendered on request) needs a few dozen at once. The looks
-    /// are the same whichever order they are computed in.
+    /// that are not cached yet, in parallel. A writer made for one frame
+    /// (an instant rendered on request) needs a few dozen at once, most of
+    /// them one pair of materials at many steps: each pair's textures are
+    /// sampled once ([`BlendLayers`]), then each look mixes the layers and
+    /// encodes a PNG. The looks are the same whichever order they are
+    /// computed in, and the same as one at a time.
     pub(crate) fn prepare(&mut self, bark_step: u32, keys: &[[u32; 3]]) {
         let mut leaves: Vec<(u32, u32, u32)> = keys
             .iter()
@@ -311,13 +313,26 @@ impl Looks {
         leaves.sort_unstable();
         leaves.dedup();
         let bark = Some(self.bark_key(bark_step)).filter(|q| !self.bark_cache.contains_key(q));
+        let mut pairs: Vec<(u32, u32)> = leaves
+            .iter()
+            .filter(|k| k.2 != 0)
+            .map(|k| (k.0, k.1))
+            .collect();
+        pairs.dedup();
         let this = &*self;
         let (bark_look, leaf_looks) = rayon::join(
             || bark.map(|q| this.bark_look(q)),
             || {
+                let layers: HashMap<(u32, u32), Option<BlendLayers>> = pairs
+                    .par_iter()
+                    .map(|&(a, b)| ((a, b), this.leaf_layers(a, b)))
+                    .collect();
                 leaves
                     .par_iter()
-                    .map(|&k| this.leaf_look(k))
+                    .map(|&k| {
+                        let pair = layers.get(&(k.0, k.1)).and_then(Option::as_ref);
+                        this.leaf_look_with(k, pair)
+                    })
                     .collect::<Vec<Look>>()
             },
         );
@@ -346,22 +361,23 @@ impl Looks {
     }
 
     /// The look of leaf key `(a, b, q)` ([`Looks::leaf_key`]), computed.
-    fn leaf_look(&self, (a, b, q): (u32, u32, u32)) -> Look {
-        if q == 0 {
-            return self.leaf(a);
-        }
-        let s = q as f32 / self.steps as f32;
-        let (ma, mb) = (&self.materials[a as usize], &self.materials[b as usize]);
-        let name = format!("{}→{}@{:.3}", ma.name, mb.name, s);
+    fn leaf_look(&self, key: (u32, u32, u32)) -> Look {
+        let layers = (key.2 != 0)
+            .then(|| self.leaf_layers(key.0, key.1))
+            .flatten();
+        self.leaf_look_with(key, layers.as_ref())
+    }
+
+    /// The blend layers of materials `a → b`, in the texture space of
+    /// `a`'s contour; `None` when neither has a texture (their blends are
+    /// plain colours).
+    fn leaf_layers(&self, a: u32, b: u32) -> Option<BlendLayers> {
         let (ia, ib) = (&self.images[a as usize], &self.images[b as usize]);
         if ia.is_none() && ib.is_none() {
-            return Look {
-                name,
-                color: lerp4(ma.color, mb.color, s),
-                texture: None,
-            };
+            return None;
         }
-        let image = blend_textures(
+        let (ma, mb) = (&self.materials[a as usize], &self.materials[b as usize]);
+        Some(BlendLayers::new(
             BlendSource {
                 image: ia.as_ref(),
                 contour: &self.contours[a as usize],
@@ -372,12 +388,29 @@ impl Looks {
                 contour: &self.contours[b as usize],
                 color: mb.color,
             },
-            s,
-        );
+        ))
+    }
+
+    /// The look of leaf key `(a, b, q)` from its pair's `layers`
+    /// ([`Looks::leaf_layers`]).
+    fn leaf_look_with(&self, (a, b, q): (u32, u32, u32), layers: Option<&BlendLayers>) -> Look {
+        if q == 0 {
+            return self.leaf(a);
+        }
+        let s = q as f32 / self.steps as f32;
+        let (ma, mb) = (&self.materials[a as usize], &self.materials[b as usize]);
+        let name = format!("{}→{}@{:.3}", ma.name, mb.name, s);
+        let Some(layers) = layers else {
+            return Look {
+                name,
+                color: lerp4(ma.color, mb.color, s),
+                texture: None,
+            };
+        };
         Look {
             name,
             color: [1.0; 4],
-            texture: Some(Texture::from_rgba(&image)),
+            texture: Some(Texture::from_rgba(&layers.blend(s))),
         }
     }
 

@@ -59,6 +59,13 @@ for _ in 1 2 3; do
 done
 echo "post_to_succeeded_ms: $(median "${succeeded[@]}") (all: ${succeeded[*]})"
 echo "post_to_first_frame_ms: $(median "${first[@]}") (all: ${first[*]})"
+# The jobs above repeat one job's trees and options, so the worker starts
+# them from the plan the first one left; a job with other options (the
+# linear schedule) on the same warm trees plans first.
+t0=$(date +%s%N)
+L=$(curl -s -XPOST "$BASE/v1/jobs" -H 'content-type: application/json' -d "{\"kind\":\"morph\",\"source\":\"$A\",\"target\":\"$B\",\"frames\":$FRAMES,\"options\":{\"schedule\":\"linear\"}}" | id)
+{ curl -sN "$BASE/v1/jobs/$L/events" || true; } | grep -m1 -q '^event: frame'
+echo "post_to_first_frame_new_plan_ms: $(ms_since "$t0")"
 
 # The stream records go right after the success: wait for them.
 dir="$DATA/blobs/jobs/$J"

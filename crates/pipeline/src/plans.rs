@@ -14,7 +14,10 @@
 //! job's stored plan ([`crate::StoredPlan::key`]: the service's renders,
 //! which then need no trees), or by the very input trees it was planned
 //! from (pointer identity of the `Arc`s the entry holds, so a tree that
-//! was reloaded never meets a plan of an older copy). Beyond
+//! was reloaded never meets a plan of an older copy), or by both: a job
+//! that has not run yet finds the plan a job of the same trees and options
+//! left (a re-run with other frames or outputs starts its frames at once;
+//! the service's tree cache hands both jobs the same `Arc`s). Beyond
 //! [`CAPACITY`] entries, or [`NODE_BUDGET`] union nodes in all, the least
 //! recently used are dropped; the newest is always kept. Written here: a
 //! `Vec` of four entries under a mutex is all an LRU of this size needs.
@@ -149,31 +152,40 @@ pub(crate) enum PlanOf<'a> {
     Key(&'a str),
     /// The input trees, in the order the spec names them.
     Trees(&'a [Arc<InputTree>]),
+    /// A job's key and the trees its plan was made from: found by either.
+    Both(&'a str, &'a [Arc<InputTree>]),
 }
 
-/// [`PlanOf`], held by an entry.
-enum Owned {
-    Key(String),
-    Trees(Vec<Arc<InputTree>>),
+/// [`PlanOf`], held by an entry: the key, the trees, or both.
+struct Owned {
+    key: Option<String>,
+    trees: Option<Vec<Arc<InputTree>>>,
 }
 
 impl Owned {
     fn matches(&self, of: PlanOf<'_>) -> bool {
-        match (self, of) {
-            (Owned::Key(a), PlanOf::Key(b)) => a == b,
-            (Owned::Trees(a), PlanOf::Trees(b)) => {
+        match of {
+            PlanOf::Key(b) => self.key.as_deref() == Some(b),
+            PlanOf::Trees(b) => self.trees.as_ref().is_some_and(|a| {
                 a.len() == b.len() && a.iter().zip(b).all(|(a, b)| Arc::ptr_eq(a, b))
+            }),
+            PlanOf::Both(key, trees) => {
+                self.matches(PlanOf::Key(key)) || self.matches(PlanOf::Trees(trees))
             }
-            _ => false,
         }
     }
 }
 
 impl From<PlanOf<'_>> for Owned {
     fn from(of: PlanOf<'_>) -> Owned {
-        match of {
-            PlanOf::Key(key) => Owned::Key(key.to_owned()),
-            PlanOf::Trees(trees) => Owned::Trees(trees.to_vec()),
+        let (key, trees) = match of {
+            PlanOf::Key(key) => (Some(key), None),
+            PlanOf::Trees(trees) => (None, Some(trees)),
+            PlanOf::Both(key, trees) => (Some(key), Some(trees)),
+        };
+        Owned {
+            key: key.map(str::to_owned),
+            trees: trees.map(<[_]>::to_vec),
         }
     }
 }
@@ -244,10 +256,10 @@ impl Plans {
         let mut entries = self.lock();
         // A plan of the same job from reloaded trees replaces the older;
         // one under the same key too (planned again after its stored
-        // copy could not be read).
+        // copy could not be read). Other jobs' keys keep theirs.
         entries.retain(|e| {
             !same_plan(&e.spec, &entry.spec)
-                || matches!((&e.of, &entry.of), (Owned::Key(a), Owned::Key(b)) if a != b)
+                || matches!((&e.of.key, &entry.of.key), (Some(a), Some(b)) if a != b)
         });
         entries.insert(0, entry.clone());
         let mut nodes = 0;

@@ -188,7 +188,14 @@ impl PipelineRunner {
                     .plans
                     .insert(spec.clone(), of, read.plan, Some(read.probed)));
             }
-            let plan = new_plan(spec, &spec_trees(input)?, sink)?;
+            // Not run yet (or its stored plan is unreadable): another job
+            // of the same trees and options, planned here, has its plan.
+            let trees = spec_trees(input)?;
+            if let Some(kept) = self.plans.get(spec, PlanOf::Trees(&trees)) {
+                return Ok(kept);
+            }
+            let plan = new_plan(spec, &trees, sink)?;
+            let of = PlanOf::Both(stored.key, &trees);
             return Ok(self.plans.insert(spec.clone(), of, plan, None));
         }
         let trees = spec_trees(input)?;

@@ -834,6 +834,49 @@ fn a_run_keeps_its_plan_under_its_key() {
     assert!(glb == PipelineRunner::default().frame_at(&fresh, 0.5).unwrap());
 }
 
+/// A job that has not run yet starts from the plan another job of the
+/// same trees and options left (a re-run with other frames), without
+/// planning again, and writes what a fresh runner writes.
+#[test]
+fn a_new_job_of_the_same_trees_and_options_starts_from_their_plan() {
+    let (spec, trees) = morph_job(4);
+    let (other, _) = morph_job(6);
+    let nothing = || None;
+    let keyed = |spec, key| JobInput {
+        spec,
+        trees: &trees,
+        stored_plan: Some(StoredPlan {
+            key,
+            load: &nothing,
+        }),
+    };
+    let keeping = || MemorySink {
+        keep_plan: true,
+        ..MemorySink::default()
+    };
+    let runner = PipelineRunner::default();
+    let mut first = keeping();
+    runner.run(&keyed(&spec, "first/1"), &mut first).unwrap();
+    let mut second = keeping();
+    runner.run(&keyed(&other, "second/1"), &mut second).unwrap();
+    assert_eq!(runner.plans.len(), 1, "the second job planned again");
+    let planning = |sink: &MemorySink| sink.events.iter().any(|e| e == "planning");
+    assert!(
+        planning(&first) && !planning(&second),
+        "{:?}",
+        second.events
+    );
+    let mut fresh = keeping();
+    PipelineRunner::default()
+        .run(&keyed(&other, "second/1"), &mut fresh)
+        .unwrap();
+    assert!(
+        second.files == fresh.files,
+        "other outputs than a fresh run's"
+    );
+    assert!(second.plan == fresh.plan, "another plan stored");
+}
+
 /// Stored plan bytes that are not a plan this build renders are named.
 #[test]
 fn stored_plans_of_other_versions_or_damaged_are_refused() {

@@ -125,6 +125,10 @@ done
 [ -n "$base" ] || { echo "the server printed no address within 30 s" >&2; exit 1; }
 echo "server at $base (header-read-timeout ${header_timeout}s, request-timeout ${request_timeout}s)"
 
+# Latency is compared with a baseline: start both on a quiet machine.
+. scripts/lib.sh
+wait_until_idle 60
+
 python3 scripts/ci/slow_clients.py \
   --base "$base" \
   --data-dir "$work/data" \

@@ -87,6 +87,19 @@ def parse_latency(text, pct):
     return float(m.group(1)) * UNITS[m.group(2)]
 
 
+def snapshot_processes(path):
+    """What used the CPUs in the last half second (top's second pass),
+    kept with the logs: a p99 under attack that rose run by run once
+    left no clue which process took the time."""
+    try:
+        done = subprocess.run(["top", "-b", "-n", "2", "-d", "0.5", "-w", "200"],
+                              capture_output=True, text=True, timeout=10)
+        with open(path, "w") as f:
+            f.write(done.stdout)
+    except (OSError, subprocess.SubprocessError) as e:
+        log(f"no process snapshot: {e}")
+
+
 def run_wrk(url, name, out_dir, script, seconds=RUN_SECONDS):
     """Runs wrk once, keeps its output, returns its numbers."""
     args = [*WRK_ARGS, f"-d{seconds}s", "-s", script]
@@ -351,6 +364,7 @@ def main():
         w0 = time.monotonic()
         attacked = run_series(base + ROUTE, "under-attack", a.out, script)
         w1 = time.monotonic()
+        snapshot_processes(os.path.join(a.out, "top-under-attack.txt"))
         log(f"  p50 {attacked['p50']:.2f} ms, p99 {attacked['p99']:.2f} ms (runs: {p99s(attacked)}), {attacked['rps']:.0f} req/s")
         min_h = watcher.min_alive(headers.pid, w0, w1)
         min_b = watcher.min_alive(body.pid, w0, w1)

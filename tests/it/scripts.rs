@@ -42,3 +42,20 @@ fn quietly_stops_a_script_under_set_e() {
     assert!(!out.status.success());
     assert!(!String::from_utf8_lossy(&out.stdout).contains("after"));
 }
+
+/// The idle share of the CPUs is a percentage, and waiting for an idle
+/// machine gives up after its limit instead of failing the step.
+#[test]
+fn waiting_for_an_idle_machine_reports_and_never_fails() {
+    let idle = with_lib("cpu_idle_percent");
+    assert!(idle.status.success());
+    let percent: u32 = String::from_utf8_lossy(&idle.stdout)
+        .trim()
+        .parse()
+        .expect("a number");
+    assert!(percent <= 100);
+    let wait = with_lib("set -e\nwait_until_idle 0\necho after");
+    assert!(wait.status.success());
+    let out = String::from_utf8_lossy(&wait.stdout);
+    assert!(out.contains("% idle") && out.ends_with("after\n"), "{out}");
+}

@@ -324,13 +324,7 @@ fn instant(
         InstantFormat::Glb => {
             let mut writer = match writers.glb.take() {
                 Some(kept) => kept,
-                None => {
-                    let options = FrameGlbOptions::default();
-                    let mut writer =
-                        FrameGlbWriter::new(topology, &probed.radii, &options).map_err(encode)?;
-                    writer.set_uv_frame(&first()).map_err(encode)?;
-                    writer
-                }
+                None => instant_glb_writer(topology, probed, &first())?,
             };
             let glb = writer.write(&frame).map_err(encode)?;
             writers.glb.keep(writer);
@@ -343,18 +337,7 @@ fn instant(
                     kept.restart(&mut out).map_err(encode)?;
                     kept
                 }
-                None => {
-                    // One instant at a time, fetched while the user waits:
-                    // bytes matter more than the millisecond zstd takes.
-                    let options = StreamOptions::default()
-                        .with_frame_count(1)
-                        .with_encoder(EncoderOptions::default());
-                    let mut writer =
-                        DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
-                            .map_err(encode)?;
-                    writer.write_header(&first(), &mut out).map_err(encode)?;
-                    writer
-                }
+                None => instant_stream_writer(topology, probed, &first(), &mut out)?,
             };
             let header = out.len();
             writer.write_frame(&frame, &mut out).map_err(encode)?;
@@ -368,6 +351,38 @@ fn instant(
             Ok(out)
         }
     }
+}
+
+/// A frame GLB writer for the instants of a sequence whose first frame is
+/// `first`.
+fn instant_glb_writer(
+    topology: &FrameTopology,
+    probed: &Probed,
+    first: &Frame,
+) -> Result<FrameGlbWriter, JobError> {
+    let options = FrameGlbOptions::default();
+    let mut writer = FrameGlbWriter::new(topology, &probed.radii, &options).map_err(encode)?;
+    writer.set_uv_frame(first).map_err(encode)?;
+    Ok(writer)
+}
+
+/// A one-frame stream writer for the instants of a sequence whose first
+/// frame is `first`, its header written to `out`.
+fn instant_stream_writer(
+    topology: &FrameTopology,
+    probed: &Probed,
+    first: &Frame,
+    out: &mut Vec<u8>,
+) -> Result<DeltaStreamWriter, JobError> {
+    // One instant at a time, fetched while the user waits: bytes matter
+    // more than the millisecond zstd takes.
+    let options = StreamOptions::default()
+        .with_frame_count(1)
+        .with_encoder(EncoderOptions::default());
+    let mut writer =
+        DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options).map_err(encode)?;
+    writer.write_header(first, out).map_err(encode)?;
+    Ok(writer)
 }
 
 fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {

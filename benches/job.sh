@@ -70,6 +70,9 @@ t0=$(date +%s%N)
 L=$(curl -s -XPOST "$BASE/v1/jobs" -H 'content-type: application/json' -d "{\"kind\":\"morph\",\"source\":\"$A\",\"target\":\"$B\",\"frames\":$FRAMES,\"options\":{\"schedule\":\"linear\"}}" | id)
 { curl -sN "$BASE/v1/jobs/$L/events" || true; } | grep -m1 -q '^event: frame'
 echo "post_to_first_frame_new_plan_ms: $(ms_since "$t0")"
+# Let it finish: the renders below are timed on an idle worker.
+{ curl -sN "$BASE/v1/jobs/$L/events" || true; } | grep -m1 -q '^event: done'
+[ "$(status "$L")" = succeeded ] || { echo "job $L: $(status "$L")" >&2; exit 1; }
 
 # The stream records go right after the success: wait for them.
 dir="$DATA/blobs/jobs/$J"

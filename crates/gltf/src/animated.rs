@@ -721,6 +721,16 @@ impl Writer {
         self.doc.accessor(accessor_json(view, kind, count, bounds))
     }
 
+    /// An accessor of `count` zeros of `kind`: without a buffer view, so
+    /// it costs nothing in the file (glTF reads it as zeros).
+    pub(crate) fn zeros(&mut self, count: usize, kind: Attr) -> usize {
+        let mut a = accessor_json(0, kind, count, None);
+        if let Some(a) = a.as_object_mut() {
+            a.remove("bufferView");
+        }
+        self.doc.accessor(a)
+    }
+
     /// The morph targets of mesh `m` (`n` vertices, keyframe-0 normals
     /// `normal`), taking their data out of `targets`.
     fn morph_targets(

@@ -19,7 +19,8 @@
 //!   [`MAX_TARGETS`] are not enough, all of them are used and the
 //!   [`BasisReport`] says so with the error reached. The figures are also
 //!   in the scene's `extras.treemorph`.
-//! - Targets carry POSITION and NORMAL; the weights are the frames'
+//! - Targets carry POSITION, and the leading ones NORMAL (`normals`: the
+//!   others' NORMAL accessors read as zeros and cost nothing); the weights are the frames'
 //!   coordinates in the basis, so any glTF player (three.js, Blender's
 //!   shape keys, game engines) plays them as ordinary morph targets.
 //!   Blender clamps shape-key values to [0, 1], so the weights are mapped
@@ -69,6 +70,7 @@
 
 mod appearance;
 mod motion;
+mod normals;
 mod skin;
 mod skinning;
 
@@ -205,6 +207,12 @@ pub struct BasisReport {
     /// Joints of a skinned animation besides its still root (0 for a
     /// basis).
     pub joints: usize,
+    /// How many of the leading targets carry normals (the others' NORMAL
+    /// accessors read as zeros; see `normals`).
+    pub normal_targets: usize,
+    /// The largest mean angle, in degrees, between a sample's normals as a
+    /// player computes them and its exact normals.
+    pub normal_error_degrees: f32,
 }
 
 /// Builds the basis animation of a sequence from its frames, pushed in
@@ -508,7 +516,8 @@ impl BasisGlbBuilder {
         } else {
             ERROR_BUDGET
         };
-        let (targets, mut report) = self.fit(budget, skin.as_ref().map(|s| (s, &base)));
+        let (targets, mut report) =
+            self.fit(budget, skin.as_ref().map(|s| (s, &base)), &base.normals);
         if let Some(skin) = &skin {
             let error = skin.max_error(&base, &targets);
             report.max_error = error / report.height;
@@ -577,6 +586,8 @@ impl BasisGlbBuilder {
             "max_error": report.max_error,
             "within_budget": report.within_budget,
             "error_budget": error_budget,
+            "normal_targets": report.normal_targets,
+            "normal_error_degrees": report.normal_error_degrees,
         });
         if report.joints > 0 {
             extras["joints"] = json!(report.joints);
@@ -636,6 +647,7 @@ impl BasisGlbBuilder {
         &mut self,
         budget: f32,
         skin: Option<(&skinning::Skin, &BasePose)>,
+        base_normals: &[Vec3],
     ) -> (Targets, BasisReport) {
         let most = if self.skinned {
             MAX_SKIN_TARGETS
@@ -655,7 +667,9 @@ impl BasisGlbBuilder {
             ),
             Some((skin, base)) => skin.fewest_that_help(base, &principal, budget),
         };
-        let targets = Targets::encode(&principal, k, self.grid);
+        let (normal_targets, normal_error_degrees) =
+            normals::leading_normals(base_normals, &self.normal_changes, &principal, k);
+        let targets = Targets::encode(&principal, (k, normal_targets), self.grid);
         // Float targets are the basis itself, offset and scaled (rounding
         // apart); quantised ones are measured again as a player reads
         // them back (a skinned animation's by its caller, through the
@@ -680,6 +694,8 @@ impl BasisGlbBuilder {
             within_budget: error <= budget,
             height,
             joints: 0,
+            normal_targets,
+            normal_error_degrees,
         };
         (targets, report)
     }
@@ -761,7 +777,8 @@ struct Targets {
 /// column) and the scale its weights carry.
 type ReadBack = (Vec<f32>, f32);
 
-/// One target's positions and normals as written.
+/// One target's positions and normals as written; empty normals are
+/// written as an accessor without a buffer view, which reads as zeros.
 enum StoredTarget {
     Float(Vec<Vec3>, Vec<Vec3>),
     /// Normalised `i16` positions in the grid's mesh space, normalised
@@ -771,8 +788,14 @@ enum StoredTarget {
 
 impl Targets {
     /// The first `k` targets of `p`, offset and scaled as the type docs
-    /// say, in the encoding of `grid` (none: floats).
-    fn encode(p: &motion::Principal, k: usize, grid: Option<(Vec3, f32)>) -> Targets {
+    /// say, in the encoding of `grid` (none: floats); only the first
+    /// `normal_targets` carry normals (an empty normal column reads as
+    /// zeros), and the rest offset sums only theirs.
+    fn encode(
+        p: &motion::Principal,
+        (k, normal_targets): (usize, usize),
+        grid: Option<(Vec3, f32)>,
+    ) -> Targets {
         let frames = p.weights.len().checked_div(p.count).unwrap_or(0);
         let weight = |j: usize, t: usize| p.weights[j * p.count + t];
         let ranges: Vec<(f32, f32)> = (0..k)
@@ -787,10 +810,17 @@ impl Targets {
         let mut columns: Vec<(Vec<f32>, Vec<f32>)> = Vec::with_capacity(k + 1);
         if offset {
             let mut pos = vec![0f32; p.positions.rows];
-            let mut nrm = vec![0f32; p.positions.rows];
+            let rows = if normal_targets > 0 {
+                p.normals.rows
+            } else {
+                0
+            };
+            let mut nrm = vec![0f32; rows];
             for (t, &(lo, _)) in ranges.iter().enumerate() {
                 add_scaled(&mut pos, p.positions.column(t), lo);
-                add_scaled(&mut nrm, p.normals.column(t), lo);
+                if t < normal_targets {
+                    add_scaled(&mut nrm, p.normals.column(t), lo);
+                }
             }
             columns.push((pos, nrm));
         }
@@ -799,7 +829,12 @@ impl Targets {
             .enumerate()
             .map(|(t, &(_, range))| {
                 let scaled = |c: &[f32]| c.iter().map(|v| v * range).collect::<Vec<f32>>();
-                (scaled(p.positions.column(t)), scaled(p.normals.column(t)))
+                let normals = if t < normal_targets {
+                    scaled(p.normals.column(t))
+                } else {
+                    Vec::new()
+                };
+                (scaled(p.positions.column(t)), normals)
             })
             .collect();
         columns.extend(scaled);
@@ -1009,6 +1044,7 @@ fn write_vertex_set(w: &mut Writer, parts: &Parts, indices: &[usize], hides: boo
 /// bounds) and normals (bytes, kind).
 struct EncodedTarget {
     position: (Vec<u8>, Attr, ([f64; 3], [f64; 3])),
+    /// Empty bytes: zeros, without a buffer view.
     normal: (Vec<u8>, Attr),
 }
 
@@ -1016,21 +1052,25 @@ struct EncodedTarget {
 fn encode_target(encoding: AnimatedEncoding, t: &StoredTarget, indices: &[usize]) -> EncodedTarget {
     match t {
         StoredTarget::Float(p, n) => {
-            let (p, n) = (pick(p, indices), pick(n, indices));
+            let (p, n) = (pick(p, indices), pick_some(n, indices));
             EncodedTarget {
                 position: (vec3_bytes(&p), Attr::Vec3F32, f32_bounds(&p)),
                 normal: (vec3_bytes(&n), Attr::Vec3F32),
             }
         }
         StoredTarget::Quantised(p, n) => {
-            let (p, n) = (pick(p, indices), pick(n, indices));
+            let (p, n) = (pick(p, indices), pick_some(n, indices));
             EncodedTarget {
                 position: (
                     meshopt_if(encoding, i16x4_bytes(&p), 8),
                     Attr::Vec3I16,
                     i16_bounds(&p),
                 ),
-                normal: (meshopt_if(encoding, i8x4_bytes(&n), 4), Attr::Vec3I8),
+                normal: if n.is_empty() {
+                    (Vec::new(), Attr::Vec3I8)
+                } else {
+                    (meshopt_if(encoding, i8x4_bytes(&n), 4), Attr::Vec3I8)
+                },
             }
         }
     }
@@ -1041,13 +1081,26 @@ fn write_target(w: &mut Writer, t: EncodedTarget, count: usize) -> Value {
     let (pb, pk, bounds) = t.position;
     let (nb, nk) = t.normal;
     let pa = w.attribute(count, pb, pk, Some(bounds));
-    let na = w.attribute(count, nb, nk, None);
+    let na = if nb.is_empty() {
+        w.zeros(count, nk)
+    } else {
+        w.attribute(count, nb, nk, None)
+    };
     json!({ "POSITION": pa, "NORMAL": na })
 }
 
 /// `values` at `indices`.
 fn pick<T: Copy>(values: &[T], indices: &[usize]) -> Vec<T> {
     indices.iter().map(|&i| values[i]).collect()
+}
+
+/// `values` at `indices`, or none when there are none (a target without
+/// normals).
+fn pick_some<T: Copy>(values: &[T], indices: &[usize]) -> Vec<T> {
+    if values.is_empty() {
+        return Vec::new();
+    }
+    pick(values, indices)
 }
 
 /// A float POSITION accessor's `min` and `max`.

@@ -28,11 +28,23 @@ fn build(sway: &Sway, options: &AnimatedOptions) -> (Vec<u8>, BasisReport) {
 
 /// The exact branch and leaf positions of sample `i`.
 fn exact(sway: &Sway, options: &AnimatedOptions, i: usize) -> [Vec<Vec3>; 2] {
+    exact_with_normals(sway, options, i).0
+}
+
+/// The exact branch and leaf positions, then normals, of sample `i`.
+fn exact_with_normals(
+    sway: &Sway,
+    options: &AnimatedOptions,
+    i: usize,
+) -> ([Vec<Vec3>; 2], [Vec<Vec3>; 2]) {
     let mut meshes =
         FrameMeshes::new(sway.topology(), sway.reference_radii(), &options.mesh).unwrap();
     meshes.set_uv_frame(&sway.frame(0)).unwrap();
     let (b, l) = meshes.mesh(&sway.frame(i)).unwrap();
-    [b.positions.clone(), l.positions.clone()]
+    (
+        [b.positions.clone(), l.positions.clone()],
+        [b.normals.clone(), l.normals.clone()],
+    )
 }
 
 /// What a player computes: the positions of the vertex set of primitive
@@ -698,5 +710,51 @@ fn a_player_reading_the_skinned_file_sees_the_error_reported() {
             played >= reported * 0.5,
             "{encoding:?}: played {played}, reported {reported}"
         );
+    }
+}
+
+#[test]
+fn the_normals_a_player_computes_stay_within_the_normal_budget() {
+    let sway = sway(12);
+    let base = AnimatedOptions::default();
+    let (samples, normals): (Vec<[Vec<Vec3>; 2]>, Vec<[Vec<Vec3>; 2]>) = (0..sway.len())
+        .map(|k| exact_with_normals(&sway, &base, k))
+        .unzip();
+    let float = Parsed::new(&build(&sway, &base).0);
+    for encoding in [AnimatedEncoding::Float, AnimatedEncoding::Quantized] {
+        let (glb, report) = build(&sway, &base.clone().with_encoding(encoding));
+        let parsed = Parsed::new(&glb);
+        assert!(report.normal_targets <= report.targets, "{report:?}");
+        assert!(report.normal_error_degrees <= normals::NORMAL_BUDGET_DEGREES);
+        // Targets past the leading ones carry no normal bytes.
+        for mesh in parsed.json["meshes"].as_array().unwrap() {
+            let targets = mesh["primitives"][0]["targets"].as_array().unwrap();
+            let stored = targets
+                .iter()
+                .filter(|t| {
+                    let a = t["NORMAL"].as_u64().unwrap() as usize;
+                    parsed.json["accessors"][a].get("bufferView").is_some()
+                })
+                .count();
+            assert!(stored <= report.normal_targets + 1, "{stored} {report:?}");
+        }
+        for (k, exact) in normals.iter().enumerate() {
+            let weights = parsed.keyframe_weights(k);
+            let (mut sum, mut count) = (0f64, 0usize);
+            for (name, m, p) in primitives(&parsed).into_iter().filter(|x| x.2 == 0) {
+                let map = vertex_map(&float, (&name, m, p), &samples);
+                let played = parsed.morphed_normals(&name, &weights);
+                for (n, &i) in played.iter().zip(&map) {
+                    let want = exact[m][i].normalize_or_zero();
+                    sum += f64::from(n.dot(want).clamp(-1.0, 1.0).acos().to_degrees());
+                    count += 1;
+                }
+            }
+            let mean = sum / count as f64;
+            assert!(
+                mean <= f64::from(normals::NORMAL_BUDGET_DEGREES),
+                "{encoding:?} sample {k}: mean normal error {mean}° ({report:?})"
+            );
+        }
     }
 }

@@ -824,12 +824,15 @@ fn finish(
 
 /// The basis or skinned animation's figures in `metrics.json`: its morph
 /// target count, its largest vertex error as a fraction of the tree's
-/// height, whether that is within the budget, and a skeleton's joint
-/// count.
+/// height, whether that is within the budget, how many targets carry
+/// normals and the normals' largest mean error in degrees, and a
+/// skeleton's joint count.
 fn add_animation_metrics(metrics: &mut Value, report: &BasisReport) {
     metrics["animation_targets"] = report.targets.into();
     metrics["animation_max_error"] = f64::from(report.max_error).into();
     metrics["animation_within_budget"] = report.within_budget.into();
+    metrics["animation_normal_targets"] = report.normal_targets.into();
+    metrics["animation_normal_error_degrees"] = f64::from(report.normal_error_degrees).into();
     if report.joints > 0 {
         metrics["animation_joints"] = report.joints.into();
     }

@@ -369,6 +369,9 @@ fn the_animation_kind_is_honoured_and_measured() {
     assert!((1..=16).contains(&targets), "{metrics}");
     assert!(metrics["animation_max_error"].as_f64().unwrap() <= 0.005);
     assert_eq!(metrics["animation_within_budget"], true);
+    let normal_targets = metrics["animation_normal_targets"].as_u64().unwrap();
+    assert!(normal_targets <= targets, "{metrics}");
+    assert!(metrics["animation_normal_error_degrees"].as_f64().unwrap() <= 5.0);
     morph.options.animation = treemorph_api::jobs::AnimationKind::Keyframes;
     let mut sink = MemorySink::default();
     run(&JobRequest::Morph(morph), &trees, &mut sink).unwrap();

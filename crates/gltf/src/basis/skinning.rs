@@ -203,10 +203,7 @@ fn folds(base: &BasePose, owners: &[(u32, NodeId)]) -> Vec<Vec3> {
 /// that applies it fully.
 fn hidden_target(folds: &[Vec3], grid: Option<(Vec3, f32)>) -> (StoredTarget, f32) {
     match grid {
-        None => (
-            StoredTarget::Float(folds.to_vec(), vec![Vec3::ZERO; folds.len()]),
-            1.0,
-        ),
+        None => (StoredTarget::Float(folds.to_vec(), Vec::new()), 1.0),
         Some((_, s)) => {
             let n = folds.len();
             let mut planar = vec![0f32; 3 * n];
@@ -215,7 +212,7 @@ fn hidden_target(folds: &[Vec3], grid: Option<(Vec3, f32)>) -> (StoredTarget, f3
                     planar[a * n + v] = f[a];
                 }
             }
-            let (target, _, scale) = quantised_target(&planar, &vec![0f32; 3 * n], s);
+            let (target, _, scale) = quantised_target(&planar, &[], s);
             (target, scale)
         }
     }

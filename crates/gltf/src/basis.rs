@@ -73,6 +73,7 @@ mod motion;
 mod normals;
 mod skin;
 mod skinning;
+mod weighted;
 
 pub use skinning::SKIN_ERROR_BUDGET;
 
@@ -654,7 +655,10 @@ impl BasisGlbBuilder {
         } else {
             MAX_TARGETS
         };
-        let principal = motion::principal(&self.displacements, &self.normal_changes, most);
+        let mut principal = motion::principal(&self.displacements, &self.normal_changes, most);
+        if let Some((skin, _)) = skin {
+            principal = skin.refit(&self.displacements, &self.normal_changes, principal);
+        }
         let height = self.heights.max(1e-6);
         let budget = budget * height;
         let (k, error) = match skin {

@@ -138,7 +138,7 @@ fn gram(d: &Columns) -> Mat<f64> {
 
 /// The square roots of the `max` largest eigenvalues of `gram` that are
 /// meaningfully above zero, and their eigenvectors (columns).
-fn largest_eigen(gram: &Mat<f64>, max: usize) -> (Vec<f64>, Mat<f64>) {
+pub(crate) fn largest_eigen(gram: &Mat<f64>, max: usize) -> (Vec<f64>, Mat<f64>) {
     let n = gram.nrows();
     let Ok(eigen) = gram.self_adjoint_eigen(Side::Lower) else {
         return (Vec::new(), Mat::zeros(n, 0));

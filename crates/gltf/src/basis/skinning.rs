@@ -46,6 +46,9 @@ pub(crate) struct Skin {
     /// the weight that folds it fully.
     pub(crate) hidden: StoredTarget,
     pub(crate) hidden_weight: f32,
+    /// Each joint's scale at each sample (`[joint][sample]`): how much of
+    /// a residual error a player shows ([`super::weighted`]).
+    scales: Vec<Vec<f32>>,
     /// The samples as meshed: the first frame and the columns of
     /// displacements from it (kept to measure the error of the file).
     first: Vec<Vec3>,
@@ -94,6 +97,10 @@ pub(crate) fn rig_up(
     let (r, rn) = skin::residuals(&rig, &fits, &base.positions, &base.normals, &samples);
     *displacements = r;
     *normal_changes = rn;
+    let scales = fits
+        .iter()
+        .map(|j| j.iter().map(|s| s.scale as f32).collect())
+        .collect();
     let folds = folds(base, owners);
     let (hidden, hidden_weight) = hidden_target(&folds, grid);
     let poses = skin::poses(&rig, origins, fits);
@@ -102,6 +109,7 @@ pub(crate) fn rig_up(
         poses,
         hidden,
         hidden_weight,
+        scales,
         first,
         first_normals,
         displacements: d,
@@ -232,6 +240,16 @@ impl Skin {
             displacements: &self.displacements,
             normal_changes: &self.normal_changes,
         }
+    }
+
+    /// `principal` (of the residual `d`, normals `nd`) refitted to the
+    /// error a player shows through the joints' scales.
+    pub(crate) fn refit(&self, d: &Columns, nd: &Columns, principal: Principal) -> Principal {
+        let shown = super::weighted::Shown {
+            vertex_joint: &self.rig.vertex_joint,
+            scales: &self.scales,
+        };
+        super::weighted::refit(d, nd, &shown, principal)
     }
 
     /// The largest distance of any vertex of any sample, as a player

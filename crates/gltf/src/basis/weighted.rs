@@ -35,6 +35,13 @@ const ITERATIONS: usize = 4;
 /// Vertices per block of the parallel passes.
 const BLOCK: usize = 4096;
 
+/// The vertex ranges of the parallel passes, [`BLOCK`] vertices each.
+fn vertex_blocks(n: usize) -> impl IndexedParallelIterator<Item = std::ops::Range<usize>> {
+    (0..n.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(move |b| b * BLOCK..((b + 1) * BLOCK).min(n))
+}
+
 /// Which joint moves each vertex and each joint's scale at each sample.
 pub(crate) struct Shown<'a> {
     pub(crate) vertex_joint: &'a [u32],
@@ -94,10 +101,8 @@ pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, start: Principal) 
 fn shown_start(d: &Columns, shown: &Shown, k: usize) -> Option<Vec<f64>> {
     let n = d.rows / 3;
     let frames = d.count();
-    let parts: Vec<Mat<f64>> = (0..n.div_ceil(BLOCK))
-        .into_par_iter()
-        .map(|b| {
-            let range = b * BLOCK..((b + 1) * BLOCK).min(n);
+    let parts: Vec<Mat<f64>> = vertex_blocks(n)
+        .map(|range| {
             let len = range.len();
             let mut sw = vec![0f32; len];
             let mut m = Mat::<f32>::zeros(3 * len, frames);
@@ -181,10 +186,8 @@ fn solve_targets(
 ) -> Columns {
     let n = d.rows / 3;
     let frames = d.count();
-    let blocks: Vec<Vec<f32>> = (0..n.div_ceil(BLOCK))
-        .into_par_iter()
-        .map(|b| {
-            let range = b * BLOCK..((b + 1) * BLOCK).min(n);
+    let blocks: Vec<Vec<f32>> = vertex_blocks(n)
+        .map(|range| {
             let len = range.len();
             let mut c = vec![0f32; k * 3 * len];
             let mut sw = vec![0f32; len];
@@ -245,10 +248,8 @@ fn solve_weights(d: &Columns, shown: &Shown, targets: &Columns, k: usize) -> Vec
     let n = d.rows / 3;
     let frames = d.count();
     let grams = joint_grams(shown, targets, k);
-    let parts: Vec<Vec<f64>> = (0..n.div_ceil(BLOCK))
-        .into_par_iter()
-        .map(|b| {
-            let range = b * BLOCK..((b + 1) * BLOCK).min(n);
+    let parts: Vec<Vec<f64>> = vertex_blocks(n)
+        .map(|range| {
             let mut rhs = vec![0f64; frames * k];
             let mut sw = vec![0f32; range.len()];
             for f in 0..frames {

@@ -717,7 +717,8 @@ fn a_player_reading_the_skinned_file_sees_the_error_reported() {
 fn the_normals_a_player_computes_stay_within_the_normal_budget() {
     let sway = sway(12);
     let base = AnimatedOptions::default();
-    let (samples, normals): (Vec<[Vec<Vec3>; 2]>, Vec<[Vec<Vec3>; 2]>) = (0..sway.len())
+    type Meshes = Vec<[Vec<Vec3>; 2]>;
+    let (samples, normals): (Meshes, Meshes) = (0..sway.len())
         .map(|k| exact_with_normals(&sway, &base, k))
         .unzip();
     let float = Parsed::new(&build(&sway, &base).0);

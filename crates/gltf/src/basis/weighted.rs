@@ -442,9 +442,8 @@ mod tests {
         // leaves joint 0's motion, which shows at full size, unexplained.
         let shown_error = |p: &Principal| {
             let mut worst = 0f32;
-            for f in 0..3 {
-                for v in 0..4 {
-                    let s = scales[joints[v] as usize][f];
+            for (v, &j) in joints.iter().enumerate() {
+                for (f, &s) in scales[j as usize].iter().enumerate() {
                     let e = (d.vertex(f, v) - offset(p, f, v, 1)).length() * s;
                     worst = worst.max(e);
                 }

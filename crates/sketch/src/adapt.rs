@@ -306,64 +306,111 @@ pub(crate) fn cover(
 /// Computes every cage's self-adaptive correction (see the module docs).
 /// `crown_delta` is the crown samples' t = 1 displacement; `tau` the
 /// coverage threshold in NDC.
+///
+/// A cage's cover needs only its own final polygon, which its parent's
+/// cover fixed: the cages of one depth of the tree are covered in
+/// parallel, depth by depth, with the same result as one at a time.
 pub(crate) fn adapt(
     mct: &mut Mct,
     crown_delta: &[Vec2],
     tau: f32,
     reach: f32,
 ) -> Result<(), SketchError> {
+    use rayon::prelude::*;
     let mut disp = vec![Vec2::ZERO; mct.vertex_count];
     disp[..crown_delta.len()].copy_from_slice(crown_delta);
-    for i in 0..mct.cages.len() {
-        // This cage's final displacement (its own correction is known).
-        if let Some(p) = mct.cages[i].parent {
-            let (po, m) = (
-                mct.cages[p as usize].offset,
-                mct.cages[p as usize].rest.len(),
-            );
-            let cage = &mct.cages[i];
-            for (v, row) in cage.weights.chunks_exact(m).enumerate() {
-                let mut d = mvc::apply(row, &disp[po..po + m]);
-                if !cage.adapt.is_empty() {
-                    d += cage.adapt[v];
-                }
-                disp[cage.offset + v] = d;
-            }
+    for depth in by_depth(mct) {
+        for &i in &depth {
+            final_displacement(mct, i, &mut disp);
         }
-        if mct.cages[i].children.is_empty() {
-            continue;
-        }
-        let cage = &mct.cages[i];
-        let m = cage.rest.len();
-        let parent_disp = &disp[cage.offset..cage.offset + m];
-        let final_poly: Vec<Vec2> = cage
-            .rest
-            .iter()
-            .zip(parent_disp)
-            .map(|(&r, &d)| r + d)
-            .collect();
-        let baselines: Vec<Vec<Vec2>> = cage
-            .children
-            .iter()
-            .map(|&c| {
-                let child = &mct.cages[c as usize];
-                child
-                    .weights
-                    .chunks_exact(m)
-                    .zip(&child.rest)
-                    .map(|(row, &r)| r + mvc::apply(row, parent_disp))
-                    .collect()
-            })
-            .collect();
-        let covered = cover(&final_poly, &baselines, tau, reach)?;
-        let kids = cage.children.clone();
-        for ((c, base), new) in kids.iter().zip(&baselines).zip(covered) {
-            if let Some(new) = new {
-                mct.cages[*c as usize].adapt = new.iter().zip(base).map(|(&n, &b)| n - b).collect();
-            }
+        let covered: Vec<Vec<(u32, Vec<Vec2>)>> = depth
+            .par_iter()
+            .filter(|&&i| !mct.cages[i].children.is_empty())
+            .map(|&i| corrections(mct, i, &disp, tau, reach))
+            .collect::<Result<_, _>>()?;
+        for (child, adapt) in covered.into_iter().flatten() {
+            mct.cages[child as usize].adapt = adapt;
         }
     }
     Ok(())
+}
+
+/// The cages by their depth in the tree, the crown alone first; in cage
+/// order within a depth.
+fn by_depth(mct: &Mct) -> Vec<Vec<usize>> {
+    let mut depth = vec![0usize; mct.cages.len()];
+    let mut levels: Vec<Vec<usize>> = Vec::new();
+    for (i, cage) in mct.cages.iter().enumerate() {
+        depth[i] = cage.parent.map_or(0, |p| depth[p as usize] + 1);
+        if levels.len() <= depth[i] {
+            levels.resize_with(depth[i] + 1, Vec::new);
+        }
+        levels[depth[i]].push(i);
+    }
+    levels
+}
+
+/// Cage `i`'s final displacement into `disp`: its parent's, carried by
+/// mean value coordinates, plus its own correction (already known).
+fn final_displacement(mct: &Mct, i: usize, disp: &mut [Vec2]) {
+    let Some(p) = mct.cages[i].parent else {
+        return;
+    };
+    let (po, m) = (
+        mct.cages[p as usize].offset,
+        mct.cages[p as usize].rest.len(),
+    );
+    let cage = &mct.cages[i];
+    for (v, row) in cage.weights.chunks_exact(m).enumerate() {
+        let mut d = mvc::apply(row, &disp[po..po + m]);
+        if !cage.adapt.is_empty() {
+            d += cage.adapt[v];
+        }
+        disp[cage.offset + v] = d;
+    }
+}
+
+/// The corrections of cage `i`'s children that stretch to cover it: per
+/// child that moved, its new polygon less its baseline.
+fn corrections(
+    mct: &Mct,
+    i: usize,
+    disp: &[Vec2],
+    tau: f32,
+    reach: f32,
+) -> Result<Vec<(u32, Vec<Vec2>)>, SketchError> {
+    let cage = &mct.cages[i];
+    let m = cage.rest.len();
+    let parent_disp = &disp[cage.offset..cage.offset + m];
+    let final_poly: Vec<Vec2> = cage
+        .rest
+        .iter()
+        .zip(parent_disp)
+        .map(|(&r, &d)| r + d)
+        .collect();
+    let baselines: Vec<Vec<Vec2>> = cage
+        .children
+        .iter()
+        .map(|&c| {
+            let child = &mct.cages[c as usize];
+            child
+                .weights
+                .chunks_exact(m)
+                .zip(&child.rest)
+                .map(|(row, &r)| r + mvc::apply(row, parent_disp))
+                .collect()
+        })
+        .collect();
+    let covered = cover(&final_poly, &baselines, tau, reach)?;
+    Ok(cage
+        .children
+        .iter()
+        .zip(&baselines)
+        .zip(covered)
+        .filter_map(|((&c, base), new)| {
+            Some((c, new?.iter().zip(base).map(|(&n, &b)| n - b).collect()))
+        })
+        .collect())
 }
 
 #[cfg(test)]

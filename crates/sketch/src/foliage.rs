@@ -102,6 +102,7 @@
 use faer::linalg::solvers::Solve;
 use faer::{Mat, Side};
 use glam::Vec2;
+use rayon::prelude::*;
 use treemorph_tree::Frame;
 use treemorph_tree::geom::NONE;
 
@@ -215,12 +216,16 @@ impl<'p> Trial<'p> {
     ) -> Result<(f32, Option<Vec<Vec2>>), SketchError> {
         let frame = self.frame_for(delta);
         let outlines = next == Some(Pass::Envelope);
-        let measured = self.metrics.fit_measure(&frame, &self.samples, outlines);
-        let Some(pass) = next else {
+        let plan = self.plan;
+        // Where the leaves are on screen is needed only by the requests,
+        // and only from the frame: found while the frame is measured.
+        let (measured, leaves) = rayon::join(
+            || self.metrics.fit_measure(&frame, &self.samples, outlines),
+            || next.map(|_| Leaves::new(plan, &frame)),
+        );
+        let (Some(pass), Some(leaves)) = (next, leaves) else {
             return Ok((measured.iou, None));
         };
-        let plan = self.plan;
-        let leaves = Leaves::new(plan, &frame);
         let requests = match pass {
             Pass::Envelope => envelope_requests(plan, &leaves, measured.outlines),
             Pass::Balance => balance_requests(plan, &leaves, &self.samples, &measured.balance),
@@ -277,7 +282,7 @@ fn envelope_requests(plan: &SketchPlan, leaves: &Leaves, outlines: Vec<Vec<Vec2>
         plan.options.crown_samples,
         sigma,
     )
-    .into_iter()
+    .into_par_iter()
     .filter_map(|(f, s, weight)| {
         Some(Request {
             lambda: leaves.weights_near(f)?,
@@ -300,6 +305,7 @@ fn balance_requests(
     let share = polygon::perimeter(samples) / n as f32;
     let cap = MAX_SHIFT * plan.crown_size;
     (0..n)
+        .into_par_iter()
         .filter_map(|i| {
             let along = samples[(i + 1) % n] - samples[(i + n - 1) % n];
             let out = Vec2::new(along.y, -along.x).normalize_or_zero();
@@ -429,35 +435,21 @@ impl<'p> Leaves<'p> {
 /// The smooth correction of the crown cage's displacements (rest polygon
 /// `cage`) that best meets the `requests` (step 4 of the module docs).
 /// Mean value coordinates are dense, so the normal equations are too (a
-/// few hundred unknowns): assembled directly, the Laplacian's and the
-/// prior's parts sparse, and solved by dense Cholesky.
+/// few hundred unknowns): the weighted request rows form a dense matrix
+/// whose products faer's kernels take, the Laplacian's and the prior's
+/// parts are added sparse, and the system is solved by dense Cholesky.
 fn correction(cage: &[Vec2], requests: &[Request]) -> Result<Vec<Vec2>, SketchError> {
     let n = cage.len();
-    let mut ata = Mat::<f64>::zeros(n, n);
-    let mut atb = Mat::<f64>::zeros(n, 2);
-    let mut row = vec![0.0f64; n];
-    for r in requests {
-        let w = f64::from(r.weight);
-        for (x, &l) in row.iter_mut().zip(&r.lambda) {
-            *x = w * f64::from(l);
-        }
-        for j in 0..n {
-            let rj = row[j];
-            if rj == 0.0 {
-                continue;
-            }
-            // Lower triangle only: Cholesky reads no more.
-            let col = ata
-                .col_mut(j)
-                .try_as_col_major_mut()
-                .expect("a fresh matrix is contiguous");
-            for (a, &ri) in col.as_slice_mut()[j..].iter_mut().zip(&row[j..]) {
-                *a += ri * rj;
-            }
-            atb[(j, 0)] += rj * w * f64::from(r.shift.x);
-            atb[(j, 1)] += rj * w * f64::from(r.shift.y);
-        }
-    }
+    let rows = Mat::<f64>::from_fn(requests.len(), n, |i, j| {
+        let r = &requests[i];
+        f64::from(r.weight) * f64::from(r.lambda.get(j).copied().unwrap_or(0.0))
+    });
+    let moves = Mat::<f64>::from_fn(requests.len(), 2, |i, k| {
+        let r = &requests[i];
+        f64::from(r.weight) * f64::from(if k == 0 { r.shift.x } else { r.shift.y })
+    });
+    let mut ata = rows.transpose() * &rows;
+    let atb = rows.transpose() * &moves;
     add_smoothness(cage, &mut ata);
     let x = ata
         .llt(Side::Lower)

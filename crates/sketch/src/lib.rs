@@ -238,6 +238,7 @@
 
 mod adapt;
 mod arcs;
+mod closing;
 mod correspondence;
 mod depth;
 mod error;

@@ -233,41 +233,72 @@ enum Lobe {
     Inner(ChainId),
 }
 
-struct Builder<'a> {
-    analysis: &'a Analysis,
-    camera: &'a Camera,
+struct Builder {
+    /// Every lobe's silhouette, taken as its cage is added.
+    silhouettes: Silhouettes,
     min_area: f32,
     cages: Vec<Cage>,
     /// Raw silhouette of each cage, for the identity test.
     raw: Vec<Vec<Vec2>>,
 }
 
-impl Builder<'_> {
+/// The silhouette of every lobe the builder may add, computed up front in
+/// parallel (projections and 2D hulls of a few thousand lobes): the
+/// builder's walk itself is sequential.
+struct Silhouettes {
+    groups: Vec<Option<Silhouette>>,
+    outer: Vec<Option<Silhouette>>,
+    inner: Vec<Option<Silhouette>>,
+}
+
+impl Silhouettes {
+    /// Groups' and chains' outer lobes, and the inner lobes of the chains
+    /// that carry groups (`child_groups`).
+    fn of(analysis: &Analysis, camera: &Camera, child_groups: &[Vec<GroupId>]) -> Silhouettes {
+        let of = |hull: &Hull| silhouette(camera, hull);
+        let chains = analysis.chains();
+        Silhouettes {
+            groups: analysis
+                .groups()
+                .par_iter()
+                .map(|g| of(&g.outer_lobe.hull))
+                .collect(),
+            outer: chains.par_iter().map(|c| of(&c.outer_lobe.hull)).collect(),
+            inner: chains
+                .par_iter()
+                .zip(child_groups)
+                .map(|(c, kids)| {
+                    if kids.is_empty() {
+                        None
+                    } else {
+                        of(&c.inner_lobe.hull)
+                    }
+                })
+                .collect(),
+        }
+    }
+
+    /// The silhouette of `lobe`, once.
+    fn take(&mut self, lobe: Lobe) -> Option<Silhouette> {
+        match lobe {
+            Lobe::Group(g) => self.groups[g as usize].take(),
+            Lobe::Outer(c) => self.outer[c as usize].take(),
+            Lobe::Inner(c) => self.inner[c as usize].take(),
+        }
+    }
+}
+
+impl Builder {
     /// Adds the cage of `lobe` under `parent`; returns the cage that
     /// represents the lobe (a new one, the parent when identical, or `None`
     /// when the lobe gets no cage).
     fn add(&mut self, lobe: Lobe, parent: u32) -> Option<u32> {
-        let (hull, kind, group, chain) = match lobe {
-            Lobe::Group(g) => (
-                &self.analysis.group(g).outer_lobe.hull,
-                CageKind::GroupOuter,
-                Some(g),
-                None,
-            ),
-            Lobe::Outer(c) => (
-                &self.analysis.chain(c).outer_lobe.hull,
-                CageKind::Outer,
-                None,
-                Some(c),
-            ),
-            Lobe::Inner(c) => (
-                &self.analysis.chain(c).inner_lobe.hull,
-                CageKind::Inner,
-                None,
-                Some(c),
-            ),
+        let (kind, group, chain) = match lobe {
+            Lobe::Group(g) => (CageKind::GroupOuter, Some(g), None),
+            Lobe::Outer(c) => (CageKind::Outer, None, Some(c)),
+            Lobe::Inner(c) => (CageKind::Inner, None, Some(c)),
         };
-        let s = silhouette(self.camera, hull)?;
+        let s = self.silhouettes.take(lobe)?;
         if polygon::signed_area(&s.points) < self.min_area {
             return None;
         }
@@ -316,9 +347,23 @@ pub(crate) fn build(
     multiscale: bool,
 ) -> Mct {
     let chains = analysis.chains();
+    let mut child_groups: Vec<Vec<GroupId>> = vec![Vec::new(); chains.len()];
+    for g in analysis.groups() {
+        if let Some(p) = g.parent_chain {
+            child_groups[p as usize].push(g.id);
+        }
+    }
+    let silhouettes = if multiscale {
+        Silhouettes::of(analysis, camera, &child_groups)
+    } else {
+        Silhouettes {
+            groups: Vec::new(),
+            outer: Vec::new(),
+            inner: Vec::new(),
+        }
+    };
     let mut b = Builder {
-        analysis,
-        camera,
+        silhouettes,
         min_area,
         cages: vec![Cage {
             kind: CageKind::Crown,
@@ -340,12 +385,6 @@ pub(crate) fn build(
     let mut inner: Vec<Option<u32>> = vec![None; chains.len()];
     let mut anchor: Vec<u32> = vec![0; chains.len()];
     if multiscale {
-        let mut child_groups: Vec<Vec<GroupId>> = vec![Vec::new(); chains.len()];
-        for g in analysis.groups() {
-            if let Some(p) = g.parent_chain {
-                child_groups[p as usize].push(g.id);
-            }
-        }
         enum Work {
             Group(GroupId, u32),
             Chain(ChainId, u32, Option<u32>),

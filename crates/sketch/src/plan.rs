@@ -146,7 +146,7 @@ impl SketchPlan {
             .zip(&crown.source)
             .map(|(&t, &s)| t - s)
             .collect();
-        let mct = cage_tree(
+        let (mct, levels) = cage_tree(
             tree,
             analysis,
             &camera,
@@ -157,8 +157,6 @@ impl SketchPlan {
             [crown_size, crown_area],
         )?;
         let wilting = Wilting::of(tree, analysis, &mct);
-        let levels = chain_levels(tree, analysis, &mct.control, options.node_weight)?;
-        let lobes = crate::lobes::LobeSource::new(analysis, &mct, &camera);
         let chains = analysis.chains();
         let mut plan = SketchPlan {
             options: options.clone(),
@@ -188,22 +186,21 @@ impl SketchPlan {
             node_wilts: wilting.nodes,
             leaf_wilts: wilting.leaves,
             chain_wilts: wilting.chains,
-            lobes,
+            lobes: Default::default(),
             pace: None,
         };
-        let staged = options.schedule.kind == ScheduleKind::Staged;
-        if options.method == Method::Multiscale && sketch.closed && options.foliage_passes > 0 {
-            // The fit's sketcher ends solved for the fitted crown: the
-            // pacing measures on it rather than solving it again.
-            let (delta, pace) = {
-                let (delta, sketcher) = foliage::fit(&plan, options.foliage_passes)?;
-                (delta, staged.then(|| pace(&sketcher)).flatten())
-            };
+        // The lobes serve only the lobe deformation, not frames: they are
+        // gathered while the crown is fitted and the schedule paced.
+        let (fitted, lobes) = rayon::join(
+            || fitted_and_paced(&plan, sketch.closed),
+            || crate::lobes::LobeSource::new(analysis, &plan.mct, &plan.camera),
+        );
+        let (delta, pace) = fitted?;
+        if let Some(delta) = delta {
             plan.crown_delta = delta;
-            plan.pace = pace;
-        } else if staged {
-            plan.pace = pace(&Sketcher::new(&plan));
         }
+        plan.pace = pace;
+        plan.lobes = lobes;
         Ok(plan)
     }
 
@@ -282,6 +279,27 @@ impl SketchPlan {
     /// changes.
     pub fn wilting_nodes(&self) -> &[bool] {
         &self.node_wilts
+    }
+}
+
+/// The foliage fit's crown displacement (`None` when the fit does not
+/// apply: the single-cage baseline, an open sketch, no passes) and the
+/// staged schedule's pace (`None` when unpaced).
+fn fitted_and_paced(
+    plan: &SketchPlan,
+    closed: bool,
+) -> Result<(Option<Vec<Vec2>>, Option<Pace>), SketchError> {
+    let options = &plan.options;
+    let staged = options.schedule.kind == ScheduleKind::Staged;
+    if options.method == Method::Multiscale && closed && options.foliage_passes > 0 {
+        // The fit's sketcher ends solved for the fitted crown: the pacing
+        // measures on it rather than solving it again.
+        let (delta, sketcher) = foliage::fit(plan, options.foliage_passes)?;
+        Ok((Some(delta), staged.then(|| pace(&sketcher)).flatten()))
+    } else if staged {
+        Ok((None, pace(&Sketcher::new(plan))))
+    } else {
+        Ok((None, None))
     }
 }
 
@@ -406,7 +424,9 @@ fn crown_correspondence(
     }
 }
 
-/// The multiscale cage tree, self-adapted and pruned as the options ask.
+/// The multiscale cage tree, self-adapted and pruned as the options ask,
+/// and the chains' systems (which need only the cages' control nodes, so
+/// they are factorised while the cages adapt).
 #[allow(clippy::too_many_arguments)]
 fn cage_tree(
     tree: &Tree,
@@ -417,7 +437,7 @@ fn cage_tree(
     s0: &mct::Silhouette,
     options: &SketchOptions,
     [crown_size, crown_area]: [f32; 2],
-) -> Result<Mct, SketchError> {
+) -> Result<(Mct, Vec<Level>), SketchError> {
     let crown_hull_vertex: Vec<u32> = crown
         .source_vertex
         .iter()
@@ -440,9 +460,27 @@ fn cage_tree(
         options.min_cage_area * crown_area,
         multiscale,
     );
+    let control = mct.control.clone();
+    let (adapted, levels) = rayon::join(
+        || adapt_and_prune(&mut mct, crown, crown_delta, options, crown_size),
+        || chain_levels(tree, analysis, &control, options.node_weight),
+    );
+    adapted?;
+    Ok((mct, levels?))
+}
+
+/// Self-adapts and prunes `mct` as the options ask.
+fn adapt_and_prune(
+    mct: &mut Mct,
+    crown: &Correspondence,
+    crown_delta: &[Vec2],
+    options: &SketchOptions,
+    crown_size: f32,
+) -> Result<(), SketchError> {
+    let multiscale = options.method == Method::Multiscale;
     let tau = options.coverage_threshold * crown_size;
     if multiscale && options.adaptive {
-        adapt::adapt(&mut mct, crown_delta, tau, options.adapt_reach * crown_size)?;
+        adapt::adapt(mct, crown_delta, tau, options.adapt_reach * crown_size)?;
     }
     if multiscale && options.prune {
         let mut disp = Vec::new();
@@ -455,14 +493,14 @@ fn cage_tree(
             .map(|(&r, &d)| r + d)
             .collect();
         prune::prune(
-            &mut mct,
+            mct,
             &finals,
             &crown.target,
             options.prune_ratio,
             options.inside_ratio,
         );
     }
-    Ok(mct)
+    Ok(())
 }
 
 /// What wilts: the parts of the tree whose cages were pruned.
@@ -605,63 +643,76 @@ fn chain_levels(
     control: &[u32],
     node_weight: f32,
 ) -> Result<Vec<Level>, SketchError> {
+    use rayon::prelude::*;
+    let max_order = analysis.chains().iter().map(|c| c.order).max().unwrap_or(1);
+    // Each order's system is its own: factorised in parallel.
+    (1..=max_order)
+        .into_par_iter()
+        .map(|order| chain_level(tree, analysis, control, node_weight, order))
+        .collect()
+}
+
+/// The chains of one `order` as one least-squares system (see
+/// [`chain_levels`]).
+fn chain_level(
+    tree: &Tree,
+    analysis: &Analysis,
+    control: &[u32],
+    node_weight: f32,
+    order: u32,
+) -> Result<Level, SketchError> {
     let skeleton = tree.skeleton();
     let chains = analysis.chains();
-    let max_order = chains.iter().map(|c| c.order).max().unwrap_or(1) as usize;
     let omega = f64::from(node_weight);
-    let mut levels = Vec::with_capacity(max_order);
-    for order in 1..=max_order as u32 {
-        let mut unknowns: Vec<NodeId> = Vec::new();
-        let mut tips: Vec<NodeId> = Vec::new();
-        let mut entries: Vec<(usize, usize, f64)> = Vec::new();
-        let mut rhs: Vec<(u32, Source, f32)> = Vec::new();
-        let mut rows = 0usize;
-        for c in chains.iter().filter(|c| c.order == order) {
-            let k = c.nodes.len() - 1;
-            let tip = c.nodes[k];
-            tips.push(tip);
-            // Unknown j ↔ own node j + 1 (inner nodes 1..k).
-            let base = unknowns.len();
-            unknowns.extend_from_slice(&c.nodes[1..k]);
-            let len = |i: usize| {
-                let a = skeleton.node(c.nodes[i - 1]).position;
-                let b = skeleton.node(c.nodes[i]).position;
-                f64::from(a.distance(b)).max(1e-9)
-            };
-            for i in 1..k {
-                let (w0, w1) = (1.0 / len(i), 1.0 / len(i + 1));
-                let a = w0 / (w0 + w1);
+    let mut unknowns: Vec<NodeId> = Vec::new();
+    let mut tips: Vec<NodeId> = Vec::new();
+    let mut entries: Vec<(usize, usize, f64)> = Vec::new();
+    let mut rhs: Vec<(u32, Source, f32)> = Vec::new();
+    let mut rows = 0usize;
+    for c in chains.iter().filter(|c| c.order == order) {
+        let k = c.nodes.len() - 1;
+        let tip = c.nodes[k];
+        tips.push(tip);
+        // Unknown j ↔ own node j + 1 (inner nodes 1..k).
+        let base = unknowns.len();
+        unknowns.extend_from_slice(&c.nodes[1..k]);
+        let len = |i: usize| {
+            let a = skeleton.node(c.nodes[i - 1]).position;
+            let b = skeleton.node(c.nodes[i]).position;
+            f64::from(a.distance(b)).max(1e-9)
+        };
+        for i in 1..k {
+            let (w0, w1) = (1.0 / len(i), 1.0 / len(i + 1));
+            let a = w0 / (w0 + w1);
+            let row = rows;
+            rows += 1;
+            entries.push((row, base + i - 1, 1.0));
+            if i == 1 {
+                rhs.push((row as u32, Source::Node(c.nodes[0]), a as f32));
+            } else {
+                entries.push((row, base + i - 2, -a));
+            }
+            if i + 1 == k {
+                rhs.push((row as u32, Source::Node(tip), (1.0 - a) as f32));
+            } else {
+                entries.push((row, base + i, -(1.0 - a)));
+            }
+            let node = c.nodes[i];
+            if omega > 0.0 && control[node as usize] != NONE && c.order > 1 {
                 let row = rows;
                 rows += 1;
-                entries.push((row, base + i - 1, 1.0));
-                if i == 1 {
-                    rhs.push((row as u32, Source::Node(c.nodes[0]), a as f32));
-                } else {
-                    entries.push((row, base + i - 2, -a));
-                }
-                if i + 1 == k {
-                    rhs.push((row as u32, Source::Node(tip), (1.0 - a) as f32));
-                } else {
-                    entries.push((row, base + i, -(1.0 - a)));
-                }
-                let node = c.nodes[i];
-                if omega > 0.0 && control[node as usize] != NONE && c.order > 1 {
-                    let row = rows;
-                    rows += 1;
-                    entries.push((row, base + i - 1, omega));
-                    rhs.push((row as u32, Source::Target(node), omega as f32));
-                }
+                entries.push((row, base + i - 1, omega));
+                rhs.push((row as u32, Source::Target(node), omega as f32));
             }
         }
-        let ls = LeastSquares::new(unknowns.len(), rows, &entries)?;
-        levels.push(Level {
-            ls,
-            unknowns,
-            tips,
-            rhs,
-        });
     }
-    Ok(levels)
+    let ls = LeastSquares::new(unknowns.len(), rows, &entries)?;
+    Ok(Level {
+        ls,
+        unknowns,
+        tips,
+        rhs,
+    })
 }
 
 #[cfg(test)]

@@ -655,10 +655,16 @@ impl BasisGlbBuilder {
         } else {
             MAX_TARGETS
         };
-        let mut principal = motion::principal(&self.displacements, &self.normal_changes, most);
-        if let Some((skin, _)) = skin {
-            principal = skin.refit(&self.displacements, &self.normal_changes, principal);
-        }
+        // A skinned residual's targets are fitted to the error as shown,
+        // as many as the plain motion has directions; the plain principal
+        // displacements are formed only where that fit does not apply.
+        let spectrum = motion::Spectrum::of(&self.displacements, most);
+        let refitted = skin.and_then(|(skin, _)| {
+            skin.refit(&self.displacements, &self.normal_changes, spectrum.count())
+        });
+        let principal = refitted.unwrap_or_else(|| {
+            motion::principal_of(&self.displacements, &self.normal_changes, spectrum)
+        });
         let height = self.heights.max(1e-6);
         let budget = budget * height;
         let (k, error) = match skin {

@@ -23,10 +23,11 @@
 //! ```
 //!
 //! The crate is synchronous and does no I/O. [`SketchPlan::new`] does the
-//! per-sketch work once (`treemorph bench`: for 5,000 branches in release
-//! 1.8–2 × the plan without the foliage fit, whose four measured t = 1
-//! frames make the difference, 1.5 × for 20,000; a staged sketch's pacing
-//! included); a [`Sketcher`] solves the end pose when made (≈ 1 ms) and
+//! per-sketch work once, on every core where its phases allow (`treemorph
+//! bench`, 5,000 branches in release, a staged sketch's pacing included:
+//! 36–45 ms; the foliage fit's four measured t = 1 frames are about half
+//! of it, and the plan without them took 28–35 ms before its phases ran in
+//! parallel); a [`Sketcher`] solves the end pose when made (≈ 1 ms) and
 //! then makes any frame in ≈ 0.2 ms, reusing its buffers.
 //!
 //! # Glossary

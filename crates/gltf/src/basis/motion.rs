@@ -85,10 +85,37 @@ pub(crate) struct Principal {
 /// combinations of `nd`), largest first. Directions whose share of the
 /// motion is below `f32` precision are left out, so a still sequence has
 /// none.
+#[cfg(test)]
 pub(crate) fn principal(d: &Columns, nd: &Columns, max: usize) -> Principal {
+    principal_of(d, nd, Spectrum::of(d, max))
+}
+
+/// The directions of a sequence's motion, before any target is formed:
+/// the square roots of the largest eigenvalues of its Gram matrix and
+/// their eigenvectors (see [`principal`]).
+pub(crate) struct Spectrum {
+    sigmas: Vec<f64>,
+    v: Mat<f64>,
+}
+
+impl Spectrum {
+    /// At most `max` directions of `d`'s motion.
+    pub(crate) fn of(d: &Columns, max: usize) -> Spectrum {
+        let (sigmas, v) = largest_eigen(&gram(d), max);
+        Spectrum { sigmas, v }
+    }
+
+    /// How many directions there are: the principal displacements'
+    /// count.
+    pub(crate) fn count(&self) -> usize {
+        self.sigmas.len()
+    }
+}
+
+/// The principal displacements of `d` (normals `nd`) along `spectrum`.
+pub(crate) fn principal_of(d: &Columns, nd: &Columns, spectrum: Spectrum) -> Principal {
     let frames = d.count();
-    let gram = gram(d);
-    let (sigmas, v) = largest_eigen(&gram, max);
+    let Spectrum { sigmas, v } = spectrum;
     let count = sigmas.len();
     let mut project = Mat::<f32>::zeros(frames, count);
     let mut weights = vec![0f32; frames * count];

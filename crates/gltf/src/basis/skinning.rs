@@ -242,14 +242,15 @@ impl Skin {
         }
     }
 
-    /// `principal` (of the residual `d`, normals `nd`) refitted to the
-    /// error a player shows through the joints' scales.
-    pub(crate) fn refit(&self, d: &Columns, nd: &Columns, principal: Principal) -> Principal {
+    /// `k` targets of the residual `d` (normals `nd`) fitted to the error
+    /// a player shows through the joints' scales (`None`: see
+    /// [`super::weighted::refit`]).
+    pub(crate) fn refit(&self, d: &Columns, nd: &Columns, k: usize) -> Option<Principal> {
         let shown = super::weighted::Shown {
             vertex_joint: &self.rig.vertex_joint,
             scales: &self.scales,
         };
-        super::weighted::refit(d, nd, &shown, principal)
+        super::weighted::refit(d, nd, &shown, k)
     }
 
     /// The largest distance of any vertex of any sample, as a player

@@ -12,7 +12,9 @@
 //!
 //! Here the targets and weights minimise the error as shown,
 //! `Σ_f Σ_v s_j(v)(f)² |r(f, v) − Σ_k w_fk T_k(v)|²`, by alternating least
-//! squares from the plain principal displacements: with the weights
+//! squares from the principal directions of the motion as shown (as many
+//! as the plain motion has; the plain principal displacements themselves
+//! are formed only when this fit does not apply): with the weights
 //! fixed, each vertex's targets solve a `K × K` system of its joint;
 //! with the targets fixed, each sample's weights solve one of its own
 //! (Srebro and Jaakkola 2003, "Weighted low-rank approximations").
@@ -64,17 +66,16 @@ impl Shown<'_> {
     }
 }
 
-/// `start`'s targets and weights refitted to the error as `shown`, for
-/// the residual `d` (positions) and `nd` (normals).
-pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, start: Principal) -> Principal {
-    let k = start.count;
+/// `k` targets and their weights fitted to the error as `shown`, for the
+/// residual `d` (positions) and `nd` (normals); `None` when the shown
+/// motion has fewer than `k` directions (or there is none to fit), where
+/// the caller keeps the plain principal displacements.
+pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, k: usize) -> Option<Principal> {
     if k == 0 || d.count() == 0 {
-        return start;
+        return None;
     }
-    let Some(mut weights) = shown_start(d, shown, k) else {
-        return start;
-    };
-    let mut targets = start.positions;
+    let mut weights = shown_start(d, shown, k)?;
+    let mut targets = Columns::default();
     for _ in 0..ITERATIONS {
         let systems = joint_systems(shown, &weights, k);
         targets = solve_targets(d, shown, &weights, &systems, k);
@@ -89,7 +90,7 @@ pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, start: Principal) 
     };
     let systems = joint_systems(&unscaled, &weights, k);
     let normals = solve_targets(nd, &unscaled, &weights, &systems, k);
-    ordered(targets, normals, &weights, shown, k)
+    Some(ordered(targets, normals, &weights, shown, k))
 }
 
 /// The starting weights: each sample's coordinates in the `k` principal
@@ -450,9 +451,24 @@ mod tests {
             }
             worst
         };
-        let refitted = refit(&d, &d, &shown, plain.clone());
+        let refitted = refit(&d, &d, &shown, plain.count).expect("one shown direction");
         assert!(shown_error(&plain) > 1.5, "{}", shown_error(&plain));
         assert!(shown_error(&refitted) < 0.6, "{}", shown_error(&refitted));
+    }
+
+    /// Nothing to fit, or fewer shown directions than asked: the caller
+    /// keeps the plain principal displacements.
+    #[test]
+    fn no_fit_without_enough_shown_motion() {
+        let (d, joints, _) = case();
+        let hidden = vec![vec![0.0; 3], vec![0.0; 3]];
+        let shown = Shown {
+            vertex_joint: &joints,
+            scales: &hidden,
+        };
+        assert!(refit(&d, &d, &shown, 1).is_none());
+        assert!(refit(&d, &d, &shown, 0).is_none());
+        assert!(refit(&Columns::default(), &Columns::default(), &shown, 1).is_none());
     }
 
     #[test]
@@ -463,8 +479,7 @@ mod tests {
             vertex_joint: &joints,
             scales: &scales,
         };
-        let plain = super::super::motion::principal(&d, &d, 2);
-        let refitted = refit(&d, &d, &shown, plain);
+        let refitted = refit(&d, &d, &shown, 2).expect("two shown directions");
         for f in 0..3 {
             for v in 0..4 {
                 let e = (d.vertex(f, v) - offset(&refitted, f, v, 2)).length();

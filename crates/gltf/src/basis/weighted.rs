@@ -75,11 +75,11 @@ pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, k: usize) -> Optio
         return None;
     }
     let mut weights = shown_start(d, shown, k)?;
-    let mut targets = Columns::default();
+    let (mut targets, mut grams) = (Columns::default(), Vec::new());
     for _ in 0..ITERATIONS {
         let systems = joint_systems(shown, &weights, k);
         targets = solve_targets(d, shown, &weights, &systems, k);
-        weights = solve_weights(d, shown, &targets, k);
+        (weights, grams) = solve_weights(d, shown, &targets, k);
     }
     // A normal turns with its joint but does not scale: its targets are
     // fitted with every sample alike.
@@ -90,7 +90,7 @@ pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, k: usize) -> Optio
     };
     let systems = joint_systems(&unscaled, &weights, k);
     let normals = solve_targets(nd, &unscaled, &weights, &systems, k);
-    Some(ordered(targets, normals, &weights, shown, k))
+    Some(ordered(targets, normals, (&weights, &grams), shown, k))
 }
 
 /// The starting weights: each sample's coordinates in the `k` principal
@@ -244,8 +244,14 @@ fn assemble(blocks: &[Vec<f32>], n: usize, k: usize) -> Columns {
 /// and `b_f = Σ_v s² T(v) · r(f, v)`. The right-hand sides are summed
 /// over vertex blocks, every sample of a block at once, so the targets
 /// are read once per pass (a pass per sample read them sixty times and
-/// took most of the refit).
-fn solve_weights(d: &Columns, shown: &Shown, targets: &Columns, k: usize) -> Vec<f64> {
+/// took most of the refit). Returns the weights and the `G_j`, which
+/// [`ordered`] needs again for the last targets.
+fn solve_weights(
+    d: &Columns,
+    shown: &Shown,
+    targets: &Columns,
+    k: usize,
+) -> (Vec<f64>, Vec<Vec<f64>>) {
     let n = d.rows / 3;
     let frames = d.count();
     let grams = joint_grams(shown, targets, k);
@@ -277,7 +283,7 @@ fn solve_weights(d: &Columns, shown: &Shown, targets: &Columns, k: usize) -> Vec
             *r += p;
         }
     }
-    (0..frames)
+    let weights = (0..frames)
         .into_par_iter()
         .flat_map_iter(|f| {
             let mut a = Mat::<f64>::zeros(k, k);
@@ -295,7 +301,8 @@ fn solve_weights(d: &Columns, shown: &Shown, targets: &Columns, k: usize) -> Vec
                 .map(|t| (0..k).map(|u| inv[(t, u)] * b[u]).sum::<f64>())
                 .collect::<Vec<f64>>()
         })
-        .collect()
+        .collect();
+    (weights, grams)
 }
 
 /// `Σ_i s_i t_i r_i`, in [`LANES`] running sums so that it vectorises (a
@@ -342,16 +349,17 @@ fn joint_grams(shown: &Shown, targets: &Columns, k: usize) -> Vec<Vec<f64>> {
 }
 
 /// The targets and weights as a [`Principal`], ordered by the shown
-/// motion each carries (`Σ_f w_fk² Σ_j s_j(f)² G_j[k][k]`), largest first.
+/// motion each carries (`Σ_f w_fk² Σ_j s_j(f)² G_j[k][k]`), largest first;
+/// `grams` are the targets' [`joint_grams`], which the last weights pass
+/// computed.
 fn ordered(
     targets: Columns,
     normals: Columns,
-    weights: &[f64],
+    (weights, grams): (&[f64], &[Vec<f64>]),
     shown: &Shown,
     k: usize,
 ) -> Principal {
     let frames = weights.len() / k;
-    let grams = joint_grams(shown, &targets, k);
     let energy: Vec<f64> = (0..k)
         .map(|t| {
             (0..frames)

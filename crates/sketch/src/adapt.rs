@@ -323,13 +323,17 @@ pub(crate) fn adapt(
         for &i in &depth {
             final_displacement(mct, i, &mut disp);
         }
-        let covered: Vec<Vec<(u32, Vec<Vec2>)>> = depth
+        let covered: Vec<Result<_, SketchError>> = depth
             .par_iter()
             .filter(|&&i| !mct.cages[i].children.is_empty())
             .map(|&i| corrections(mct, i, &disp, tau, reach))
-            .collect::<Result<_, _>>()?;
-        for (child, adapt) in covered.into_iter().flatten() {
-            mct.cages[child as usize].adapt = adapt;
+            .collect();
+        // In cage order, so a failure names the first cage that failed,
+        // as one cage at a time did.
+        for corrected in covered {
+            for (child, adapt) in corrected? {
+                mct.cages[child as usize].adapt = adapt;
+            }
         }
     }
     Ok(())

@@ -46,6 +46,7 @@
 use std::collections::BTreeMap;
 
 use glam::Vec2;
+use rayon::prelude::*;
 
 use crate::error::SketchError;
 use crate::laplacian::{LeastSquares, scratch_for};
@@ -229,6 +230,34 @@ fn pull(child: &[Vec2], parent: &[Vec2], tau: f32, run: &[Vec2], out: &mut BTree
     }
 }
 
+/// No child: a sample nobody covers or stretches to.
+const NOBODY: usize = usize::MAX;
+
+/// Boundary samples of a parent assigned in one parallel task.
+const SAMPLES_PER_TASK: usize = 64;
+
+/// The child of `children` (bounding `boxes`) nearest to `s` and its
+/// distance (0 inside it); `(∞, NOBODY)` when there is none.
+fn nearest_child(children: &[Vec<Vec2>], boxes: &[(Vec2, Vec2)], s: Vec2) -> (f32, usize) {
+    let mut best = (f32::INFINITY, NOBODY);
+    for (c, child) in children.iter().enumerate() {
+        let (lo, hi) = boxes[c];
+        let box_d = (lo - s).max(s - hi).max(Vec2::ZERO).length();
+        if box_d >= best.0 || child.len() < 3 {
+            continue;
+        }
+        let d = if polygon::contains(child, s) {
+            0.0
+        } else {
+            polygon::distance_to_boundary(child, s)
+        };
+        if d < best.0 {
+            best = (d, c);
+        }
+    }
+    best
+}
+
 /// Stretches `children` (baseline polygons) to cover `parent`'s uncovered
 /// segments; returns the new polygon of every child that moved. `reach`
 /// bounds how far a child stretches.
@@ -248,30 +277,19 @@ pub(crate) fn cover(
         .map(|c| polygon::bounds(c).unwrap_or((Vec2::ZERO, Vec2::ZERO)))
         .collect();
     // Per sample: the child covering it, or the child that will stretch
-    // to it (NOBODY: none).
-    const NOBODY: usize = usize::MAX;
-    let mut owner = vec![NOBODY; samples.len()];
-    for (k, &s) in samples.iter().enumerate() {
-        let mut best = (f32::INFINITY, NOBODY);
-        for (c, child) in children.iter().enumerate() {
-            let (lo, hi) = boxes[c];
-            let box_d = (lo - s).max(s - hi).max(Vec2::ZERO).length();
-            if box_d >= best.0 || child.len() < 3 {
-                continue;
-            }
-            let d = if polygon::contains(child, s) {
-                0.0
+    // to it (NOBODY: none). The samples are independent: in parallel.
+    let owner: Vec<usize> = samples
+        .par_iter()
+        .with_min_len(SAMPLES_PER_TASK)
+        .map(|&s| {
+            let best = nearest_child(children, &boxes, s);
+            if best.0 > tau && best.0 <= reach {
+                best.1
             } else {
-                polygon::distance_to_boundary(child, s)
-            };
-            if d < best.0 {
-                best = (d, c);
+                NOBODY
             }
-        }
-        if best.0 > tau && best.0 <= reach {
-            owner[k] = best.1;
-        }
-    }
+        })
+        .collect();
     let m = samples.len();
     if owner.iter().all(|&o| o == NOBODY) {
         return Ok(result);
@@ -316,7 +334,6 @@ pub(crate) fn adapt(
     tau: f32,
     reach: f32,
 ) -> Result<(), SketchError> {
-    use rayon::prelude::*;
     let mut disp = vec![Vec2::ZERO; mct.vertex_count];
     disp[..crown_delta.len()].copy_from_slice(crown_delta);
     for depth in by_depth(mct) {

@@ -59,6 +59,11 @@ pub(crate) struct Arcs {
     /// Per node: its segment's rotation, rest direction → end
     /// direction, `Q_i`.
     turn: Vec<Quat>,
+    /// Per node: its rotation at its clock's end, `slerp(1, Q_i, 1)`,
+    /// computed once per end pose: at a given `t` most chains have not
+    /// started or have finished turning, and their slerps are the
+    /// identity (exactly, at `s = 0`) or this one.
+    turned: Vec<Quat>,
     /// Per node: end length over rest length; `None` for a segment of no
     /// rest length.
     scale: Vec<Option<f32>>,
@@ -73,6 +78,9 @@ pub(crate) struct Arcs {
     clock: Vec<f32>,
     world: Vec<Quat>,
 }
+
+/// Nodes aimed in one parallel task.
+const NODES_PER_TASK: usize = 1024;
 
 /// Rest segments shorter than this fraction of the tree's height have no
 /// direction.
@@ -93,37 +101,50 @@ impl Arcs {
     /// again, the tables and buffers are kept: the foliage fit tries
     /// several end poses).
     pub(crate) fn aim(&mut self, plan: &SketchPlan, end: Vec<Vec3>) {
+        use rayon::prelude::*;
         let rest = &plan.rest.positions;
         let n = rest.len();
         for v in [&mut self.rest_offset, &mut self.end_offset] {
             v.clear();
             v.resize(n, Vec3::ZERO);
         }
-        self.turn.clear();
-        self.turn.resize(n, Quat::IDENTITY);
+        for v in [&mut self.turn, &mut self.turned, &mut self.world] {
+            v.clear();
+            v.resize(n, Quat::IDENTITY);
+        }
         self.scale.clear();
         self.scale.resize(n, Some(1.0));
-        self.world.clear();
-        self.world.resize(n, Quat::IDENTITY);
         let tiny = TINY * plan.height.max(f32::MIN_POSITIVE);
-        for (i, parent) in plan.topology.parents.iter().enumerate() {
-            let Some(p) = parent.map(|p| p as usize) else {
-                continue;
-            };
-            let (a, b) = (rest[i] - rest[p], end[i] - end[p]);
-            self.rest_offset[i] = a;
-            self.end_offset[i] = b;
-            let len = a.length();
-            if len <= tiny {
-                self.scale[i] = None;
-                continue;
-            }
-            self.scale[i] = Some(b.length() / len);
-            self.turn[i] = match b.try_normalize() {
-                Some(b) => Quat::from_rotation_arc(a / len, b),
-                None => Quat::IDENTITY,
-            };
-        }
+        let parents = &plan.topology.parents;
+        (
+            &mut self.rest_offset,
+            &mut self.end_offset,
+            &mut self.turn,
+            &mut self.turned,
+            &mut self.scale,
+        )
+            .into_par_iter()
+            .enumerate()
+            .with_min_len(NODES_PER_TASK)
+            .for_each(|(i, (rest_offset, end_offset, turn, turned, scale))| {
+                let Some(p) = parents[i].map(|p| p as usize) else {
+                    return;
+                };
+                let (a, b) = (rest[i] - rest[p], end[i] - end[p]);
+                *rest_offset = a;
+                *end_offset = b;
+                let len = a.length();
+                if len <= tiny {
+                    *scale = None;
+                    return;
+                }
+                *scale = Some(b.length() / len);
+                *turn = match b.try_normalize() {
+                    Some(b) => Quat::from_rotation_arc(a / len, b),
+                    None => Quat::IDENTITY,
+                };
+                *turned = Quat::IDENTITY.slerp(*turn, 1.0);
+            });
         self.thicken = thickening(plan, &end, &self.node_chain, &self.chain_order);
         self.clock.clear();
         self.clock.resize(self.thicken.len(), 0.0);
@@ -153,7 +174,7 @@ impl Arcs {
             let s = self.clock.get(c).copied().unwrap_or(root);
             let offset = match self.scale[i] {
                 Some(scale) => {
-                    let w = Quat::IDENTITY.slerp(self.turn[i], s);
+                    let w = self.turn_at(i, s);
                     self.world[i] = w;
                     w * (self.rest_offset[i] * (1.0 + s * (scale - 1.0)))
                 }
@@ -168,6 +189,19 @@ impl Arcs {
         }
         if t >= 1.0 {
             positions.copy_from_slice(&self.end);
+        }
+    }
+
+    /// Node `i`'s segment's rotation at its clock `s`,
+    /// `slerp(1, Q_i, s)`: the same quaternion, bit for bit, without the
+    /// slerp at either end of the clock.
+    fn turn_at(&self, i: usize, s: f32) -> Quat {
+        if s == 0.0 {
+            Quat::IDENTITY
+        } else if s == 1.0 {
+            self.turned[i]
+        } else {
+            Quat::IDENTITY.slerp(self.turn[i], s)
         }
     }
 
@@ -228,4 +262,42 @@ fn thickening(plan: &SketchPlan, end: &[Vec3], chains: &[u32], order: &[u32]) ->
         k[c] = scale;
     }
     k
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Shortest-arc turns of every kind: tiny ones (the slerp's linear
+    /// path), half turns and everything between, in all directions.
+    fn turns() -> Vec<Quat> {
+        let mut out = Vec::new();
+        for i in 0..400u32 {
+            let f = i as f32;
+            let a = Vec3::new((f * 0.37).sin(), (f * 0.91).cos(), (f * 0.13).sin()).normalize();
+            let tilt =
+                [1e-7, 1e-4, 0.01, 0.5, 1.5, 3.0, std::f32::consts::PI - 1e-6][i as usize % 7];
+            let b = Quat::from_axis_angle(a.any_orthonormal_vector(), tilt) * a;
+            out.push(Quat::from_rotation_arc(a, b.normalize()));
+        }
+        out
+    }
+
+    /// The shortcut at either end of a clock is the slerp itself, bit for
+    /// bit: frames placed with it are the same bytes as before it.
+    #[test]
+    fn turns_at_the_clock_ends_are_the_slerps() {
+        let bits = |q: Quat| q.to_array().map(f32::to_bits);
+        for q in turns() {
+            let arcs = Arcs {
+                turn: vec![q],
+                turned: vec![Quat::IDENTITY.slerp(q, 1.0)],
+                ..Arcs::default()
+            };
+            for s in [0.0, 0.25, 1.0] {
+                let slerp = Quat::IDENTITY.slerp(q, s);
+                assert_eq!(bits(arcs.turn_at(0, s)), bits(slerp), "{q:?} at {s}");
+            }
+        }
+    }
 }

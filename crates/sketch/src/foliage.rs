@@ -219,8 +219,14 @@ impl<'p> Trial<'p> {
         let plan = self.plan;
         // Where the leaves are on screen is needed only by the requests,
         // and only from the frame: found while the frame is measured.
+        // The balance serves only a balance pass's requests.
+        let samples: &[Vec2] = if next == Some(Pass::Balance) {
+            &self.samples
+        } else {
+            &[]
+        };
         let (measured, leaves) = rayon::join(
-            || self.metrics.fit_measure(&frame, &self.samples, outlines),
+            || self.metrics.fit_measure(&frame, samples, outlines),
             || next.map(|_| Leaves::new(plan, &frame)),
         );
         let (Some(pass), Some(leaves)) = (next, leaves) else {

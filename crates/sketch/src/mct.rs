@@ -233,9 +233,9 @@ enum Lobe {
     Inner(ChainId),
 }
 
-struct Builder {
+struct Builder<'a> {
     /// Every lobe's silhouette, taken as its cage is added.
-    silhouettes: Silhouettes,
+    silhouettes: Silhouettes<'a>,
     min_area: f32,
     cages: Vec<Cage>,
     /// Raw silhouette of each cage, for the identity test.
@@ -244,26 +244,47 @@ struct Builder {
 
 /// The silhouette of every lobe the builder may add, computed up front in
 /// parallel (projections and 2D hulls of a few thousand lobes): the
-/// builder's walk itself is sequential.
-struct Silhouettes {
+/// builder's walk itself is sequential. A chain alone in its group is
+/// represented by its group's cage, so its outer lobe is computed only if
+/// the walk asks for it (when the group got no cage).
+struct Silhouettes<'a> {
+    camera: &'a Camera,
+    analysis: &'a Analysis,
     groups: Vec<Option<Silhouette>>,
     outer: Vec<Option<Silhouette>>,
     inner: Vec<Option<Silhouette>>,
 }
 
-impl Silhouettes {
-    /// Groups' and chains' outer lobes, and the inner lobes of the chains
-    /// that carry groups (`child_groups`).
-    fn of(analysis: &Analysis, camera: &Camera, child_groups: &[Vec<GroupId>]) -> Silhouettes {
+impl<'a> Silhouettes<'a> {
+    /// Groups' outer lobes, the outer lobes of chains that share their
+    /// group, and the inner lobes of the chains that carry groups
+    /// (`child_groups`).
+    fn of(
+        analysis: &'a Analysis,
+        camera: &'a Camera,
+        child_groups: &[Vec<GroupId>],
+    ) -> Silhouettes<'a> {
         let of = |hull: &Hull| silhouette(camera, hull);
         let chains = analysis.chains();
+        let mut shared = vec![false; chains.len()];
+        for g in analysis.groups().iter().filter(|g| g.chains.len() > 1) {
+            for &c in &g.chains {
+                shared[c as usize] = true;
+            }
+        }
         Silhouettes {
+            camera,
+            analysis,
             groups: analysis
                 .groups()
                 .par_iter()
                 .map(|g| of(&g.outer_lobe.hull))
                 .collect(),
-            outer: chains.par_iter().map(|c| of(&c.outer_lobe.hull)).collect(),
+            outer: chains
+                .par_iter()
+                .zip(&shared)
+                .map(|(c, &shared)| shared.then(|| of(&c.outer_lobe.hull)).flatten())
+                .collect(),
             inner: chains
                 .par_iter()
                 .zip(child_groups)
@@ -278,17 +299,33 @@ impl Silhouettes {
         }
     }
 
+    /// No lobe: the single-cage baseline.
+    fn none(analysis: &'a Analysis, camera: &'a Camera) -> Silhouettes<'a> {
+        Silhouettes {
+            camera,
+            analysis,
+            groups: Vec::new(),
+            outer: Vec::new(),
+            inner: Vec::new(),
+        }
+    }
+
     /// The silhouette of `lobe`, once.
     fn take(&mut self, lobe: Lobe) -> Option<Silhouette> {
         match lobe {
             Lobe::Group(g) => self.groups[g as usize].take(),
-            Lobe::Outer(c) => self.outer[c as usize].take(),
+            Lobe::Outer(c) => self.outer[c as usize].take().or_else(|| {
+                silhouette(
+                    self.camera,
+                    &self.analysis.chains()[c as usize].outer_lobe.hull,
+                )
+            }),
             Lobe::Inner(c) => self.inner[c as usize].take(),
         }
     }
 }
 
-impl Builder {
+impl Builder<'_> {
     /// Adds the cage of `lobe` under `parent`; returns the cage that
     /// represents the lobe (a new one, the parent when identical, or `None`
     /// when the lobe gets no cage).
@@ -356,11 +393,7 @@ pub(crate) fn build(
     let silhouettes = if multiscale {
         Silhouettes::of(analysis, camera, &child_groups)
     } else {
-        Silhouettes {
-            groups: Vec::new(),
-            outer: Vec::new(),
-            inner: Vec::new(),
-        }
+        Silhouettes::none(analysis, camera)
     };
     let mut b = Builder {
         silhouettes,
@@ -433,46 +466,10 @@ pub(crate) fn build(
     let mut cages = b.cages;
     cage_weights(&mut cages);
 
-    // Control cages of every chain node (the tip always gets one).
-    let diag: Vec<f32> = cages.iter().map(|c| polygon::diagonal(&c.rest)).collect();
-    let holds = |n: u32, p: Vec2| {
-        let cage = &cages[n as usize].rest;
-        polygon::contains(cage, p)
-            || polygon::distance_to_boundary(cage, p) <= 0.05 * diag[n as usize]
-    };
     let node_count = ndc.len();
     let mut control = vec![NONE; node_count];
     let mut offsets = vec![0usize; node_count + 1];
-    let mut found: Vec<(u32, u32)> = Vec::new();
-    for (c, chain) in chains.iter().enumerate() {
-        let last = chain.nodes.len() - 1;
-        for (i, &node) in chain.nodes.iter().enumerate().skip(1) {
-            let p = ndc[node as usize];
-            let mut chosen = None;
-            if let Some(il) = inner[c]
-                && holds(il, p)
-            {
-                chosen = Some(il);
-            }
-            let mut n = anchor[c];
-            while chosen.is_none() {
-                if holds(n, p) {
-                    chosen = Some(n);
-                    break;
-                }
-                match cages[n as usize].parent {
-                    Some(parent) => n = parent,
-                    None => break,
-                }
-            }
-            if chosen.is_none() && i == last {
-                chosen = Some(0);
-            }
-            if let Some(cage) = chosen {
-                found.push((node, cage));
-            }
-        }
-    }
+    let mut found = control_cages(chains, &cages, &inner, &anchor, ndc);
     found.sort_unstable();
     let mut total = 0;
     let mut k = 0;
@@ -495,6 +492,55 @@ pub(crate) fn build(
         offsets,
         vertex_count,
     }
+}
+
+/// Every chain node's control cage, as `(node, cage)` (the tip always
+/// gets one): the chain's inner cage when it holds the node, else the
+/// nearest cage up from the chain's own that does. Chains are independent:
+/// in parallel.
+fn control_cages(
+    chains: &[treemorph_analysis::Chain],
+    cages: &[Cage],
+    inner: &[Option<u32>],
+    anchor: &[u32],
+    ndc: &[Vec2],
+) -> Vec<(u32, u32)> {
+    let diag: Vec<f32> = cages.iter().map(|c| polygon::diagonal(&c.rest)).collect();
+    let holds = |n: u32, p: Vec2| {
+        let cage = &cages[n as usize].rest;
+        polygon::contains(cage, p)
+            || polygon::distance_to_boundary(cage, p) <= 0.05 * diag[n as usize]
+    };
+    let chosen = |c: usize, p: Vec2| {
+        if let Some(il) = inner[c]
+            && holds(il, p)
+        {
+            return Some(il);
+        }
+        let mut n = anchor[c];
+        loop {
+            if holds(n, p) {
+                return Some(n);
+            }
+            n = cages[n as usize].parent?;
+        }
+    };
+    chains
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(c, chain)| {
+            let last = chain.nodes.len() - 1;
+            chain
+                .nodes
+                .iter()
+                .enumerate()
+                .skip(1)
+                .filter_map(move |(i, &node)| {
+                    let cage = chosen(c, ndc[node as usize]).or((i == last).then_some(0))?;
+                    Some((node, cage))
+                })
+        })
+        .collect()
 }
 
 impl Mct {

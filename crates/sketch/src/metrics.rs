@@ -312,7 +312,8 @@ impl<'p> SketchMetrics<'p> {
     /// crown at `frame.t` (`samples`: points along the reference), in one
     /// rasterisation: the IoU, the outer boundary of every piece of the
     /// outline when `outlines` is asked ([`SketchMetrics::outline`] keeps
-    /// only the largest), and the area balance along the reference.
+    /// only the largest), and the area balance along the reference (none
+    /// without samples).
     pub(crate) fn fit_measure(
         &mut self,
         frame: &Frame,
@@ -451,8 +452,7 @@ impl<'p> SketchMetrics<'p> {
             );
             let centres = ceil2(qlo - 0.5).cmple(floor2(qhi - 0.5));
             if centres.all() {
-                fill_triangle(&mut self.mask, g, q[0], q[1], q[2]);
-                fill_triangle(&mut self.mask, g, q[0], q[2], q[3]);
+                fill_quad(&mut self.mask, g, q);
             }
             // Blades smaller than a pixel still count.
             let c = (q[0] + q[1] + q[2] + q[3]) * 0.25;
@@ -710,37 +710,89 @@ fn floor2(v: Vec2) -> Vec2 {
     -ceil2(-v)
 }
 
-/// Marks pixels whose centres are inside triangle `abc` (pixel units).
-fn fill_triangle(mask: &mut [bool], g: usize, a: Vec2, b: Vec2, c: Vec2) {
-    let lo = a.min(b).min(c);
-    let hi = a.max(b).max(c);
-    let (from, to) = (ceil2(lo - 0.5), floor2(hi - 0.5));
-    let x0 = from.x.max(0.0) as usize;
-    let y0 = from.y.max(0.0) as usize;
-    let x1 = (to.x.min(g as f32 - 1.0)).max(-1.0);
-    let y1 = (to.y.min(g as f32 - 1.0)).max(-1.0);
-    if x1 < 0.0 || y1 < 0.0 {
+/// Marks the pixels whose centres are inside the quad `q` (pixel units):
+/// inside its triangle `q0 q1 q2` or `q0 q2 q3` ([`Triangle::covers`]),
+/// in one sweep of their pixel ranges. Pixels already marked are not
+/// tested again: in a dense crown most blades fall on foliage an earlier
+/// blade covered.
+fn fill_quad(mask: &mut [bool], g: usize, q: [Vec2; 4]) {
+    let tris = [
+        Triangle::new(g, q[0], q[1], q[2]),
+        Triangle::new(g, q[0], q[2], q[3]),
+    ];
+    let Some(([x0, y0], [x1, y1])) =
+        tris.iter()
+            .flatten()
+            .map(|t| (t.from, t.to))
+            .reduce(|a, b| {
+                (
+                    [a.0[0].min(b.0[0]), a.0[1].min(b.0[1])],
+                    [a.1[0].max(b.1[0]), a.1[1].max(b.1[1])],
+                )
+            })
+    else {
         return;
-    }
-    let (x1, y1) = (x1 as usize, y1 as usize);
-    let area = (b - a).perp_dot(c - a);
-    if area == 0.0 {
-        return;
-    }
+    };
     for y in y0..=y1 {
         for x in x0..=x1 {
-            let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-            let w0 = (b - a).perp_dot(p - a);
-            let w1 = (c - b).perp_dot(p - b);
-            let w2 = (a - c).perp_dot(p - c);
-            let inside = if area > 0.0 {
-                w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0
-            } else {
-                w0 <= 0.0 && w1 <= 0.0 && w2 <= 0.0
-            };
-            if inside {
-                mask[y * g + x] = true;
+            let i = y * g + x;
+            if !mask[i] && tris.iter().flatten().any(|t| t.covers(x, y)) {
+                mask[i] = true;
             }
+        }
+    }
+}
+
+/// A triangle to rasterise: its corners, the sign of its area and the
+/// pixels its bounding box spans (inclusive, within the raster).
+struct Triangle {
+    a: Vec2,
+    b: Vec2,
+    c: Vec2,
+    area: f32,
+    from: [usize; 2],
+    to: [usize; 2],
+}
+
+impl Triangle {
+    /// Triangle `abc` on a `g`² raster; `None` when it spans no area or
+    /// no pixel centre of the raster.
+    fn new(g: usize, a: Vec2, b: Vec2, c: Vec2) -> Option<Triangle> {
+        let lo = a.min(b).min(c);
+        let hi = a.max(b).max(c);
+        let (from, to) = (ceil2(lo - 0.5), floor2(hi - 0.5));
+        let x1 = (to.x.min(g as f32 - 1.0)).max(-1.0);
+        let y1 = (to.y.min(g as f32 - 1.0)).max(-1.0);
+        let area = (b - a).perp_dot(c - a);
+        if x1 < 0.0 || y1 < 0.0 || area == 0.0 {
+            return None;
+        }
+        let from = [from.x.max(0.0) as usize, from.y.max(0.0) as usize];
+        let to = [x1 as usize, y1 as usize];
+        (from[0] <= to[0] && from[1] <= to[1]).then_some(Triangle {
+            a,
+            b,
+            c,
+            area,
+            from,
+            to,
+        })
+    }
+
+    /// Whether the centre of pixel `(x, y)` is inside (edges included).
+    fn covers(&self, x: usize, y: usize) -> bool {
+        if x < self.from[0] || x > self.to[0] || y < self.from[1] || y > self.to[1] {
+            return false;
+        }
+        let (a, b, c) = (self.a, self.b, self.c);
+        let p = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+        let w0 = (b - a).perp_dot(p - a);
+        let w1 = (c - b).perp_dot(p - b);
+        let w2 = (a - c).perp_dot(p - c);
+        if self.area > 0.0 {
+            w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0
+        } else {
+            w0 <= 0.0 && w1 <= 0.0 && w2 <= 0.0
         }
     }
 }
@@ -943,9 +995,8 @@ mod tests {
         ];
         fill_polygon(&mut mask, g, &sq);
         assert_eq!(mask.iter().filter(|&&m| m).count(), 12);
-        let mut tri = vec![false; g * g];
-        fill_triangle(&mut tri, g, sq[0], sq[1], sq[2]);
-        fill_triangle(&mut tri, g, sq[0], sq[2], sq[3]);
-        assert_eq!(tri, mask);
+        let mut quad = vec![false; g * g];
+        fill_quad(&mut quad, g, sq);
+        assert_eq!(quad, mask);
     }
 }

@@ -68,6 +68,11 @@ pub(crate) fn clip_ratio(cage: &[Vec2], sketch: &Polygon<f64>) -> f64 {
 
 /// Marks cages for pruning. `finals` holds every cage vertex's final
 /// position (flat, by cage offset); `sketched` is the sketched crown.
+///
+/// Top-down: a cage mostly outside the sketch is pruned with its subtree,
+/// one partly outside has its children tested, one inside is kept whole.
+/// A cage's test needs only its own polygon, so each depth's cages are
+/// tested in parallel (boolean operations, the costly part).
 pub(crate) fn prune(
     mct: &mut Mct,
     finals: &[Vec2],
@@ -75,21 +80,35 @@ pub(crate) fn prune(
     prune_ratio: f32,
     inside_ratio: f32,
 ) {
+    use rayon::prelude::*;
     let sketch = to_geo(sketched);
-    let mut stack: Vec<u32> = mct.cages[0].children.iter().rev().copied().collect();
-    while let Some(n) = stack.pop() {
-        let cage = &mct.cages[n as usize];
-        let poly = &finals[cage.offset..cage.offset + cage.rest.len()];
-        let r = clip_ratio(poly, &sketch);
-        if r < f64::from(prune_ratio) {
-            let mut sub = vec![n];
-            while let Some(s) = sub.pop() {
-                mct.cages[s as usize].pruned = true;
-                sub.extend_from_slice(&mct.cages[s as usize].children);
+    let mut tested: Vec<u32> = mct.cages[0].children.clone();
+    while !tested.is_empty() {
+        let ratios: Vec<f64> = tested
+            .par_iter()
+            .map(|&n| {
+                let cage = &mct.cages[n as usize];
+                clip_ratio(&finals[cage.offset..cage.offset + cage.rest.len()], &sketch)
+            })
+            .collect();
+        let mut next = Vec::new();
+        for (&n, r) in tested.iter().zip(ratios) {
+            if r < f64::from(prune_ratio) {
+                prune_subtree(mct, n);
+            } else if r < f64::from(inside_ratio) {
+                next.extend_from_slice(&mct.cages[n as usize].children);
             }
-        } else if r < f64::from(inside_ratio) {
-            stack.extend(cage.children.iter().rev().copied());
         }
+        tested = next;
+    }
+}
+
+/// Marks cage `n` and everything below it pruned.
+fn prune_subtree(mct: &mut Mct, n: u32) {
+    let mut sub = vec![n];
+    while let Some(s) = sub.pop() {
+        mct.cages[s as usize].pruned = true;
+        sub.extend_from_slice(&mct.cages[s as usize].children);
     }
 }
 

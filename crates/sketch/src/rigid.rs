@@ -109,8 +109,8 @@ fn lengths_scale(g: f32, arc: f32, chord: f32, rest_length: f32) -> f32 {
 /// The per-plan tables and buffers of the re-solve.
 #[derive(Debug, Default)]
 pub(crate) struct Rigid {
-    /// Chains, parents before children.
-    order: Vec<u32>,
+    /// Chains by generation: the root chains, their children, theirs, …
+    generations: Vec<Vec<u32>>,
     /// Per chain: whether its tip follows a cage.
     caged: Vec<bool>,
     /// Per chain: its rest chord and arc length.
@@ -119,10 +119,8 @@ pub(crate) struct Rigid {
     /// Per entry of `plan.chain_nodes` but a chain's last: the rest length
     /// of the segment to the chain's next node.
     rest_segment: Vec<f32>,
-    /// Scratch: every node as solved; one chain's nodes.
+    /// Scratch: every node as solved.
     solved: Vec<Vec3>,
-    chain: Vec<Vec3>,
-    scratch: Vec<Vec3>,
 }
 
 impl Rigid {
@@ -130,7 +128,7 @@ impl Rigid {
     pub(crate) fn new(plan: &SketchPlan) -> Rigid {
         let rest = &plan.rest.positions;
         let mut rigid = Rigid {
-            order: parents_first(&plan.chain_parent),
+            generations: generations(&plan.chain_parent),
             rest_segment: vec![0.0; plan.chain_nodes.len()],
             ..Rigid::default()
         };
@@ -153,51 +151,75 @@ impl Rigid {
     }
 
     /// Re-solves every chain of the solved `positions` (see the module
-    /// docs).
+    /// docs). A chain needs only its junction, which its parent chain
+    /// placed: the chains of one generation are re-solved in parallel,
+    /// generation by generation, with the same result as one at a time.
     pub(crate) fn apply(&mut self, plan: &SketchPlan, positions: &mut [Vec3]) {
+        use rayon::prelude::*;
         self.solved.clear();
         self.solved.extend_from_slice(positions);
-        for &c in &self.order {
-            let c = c as usize;
-            let (a, b) = plan.chain_ranges[c];
-            let nodes = &plan.chain_nodes[a as usize..b as usize];
-            if nodes.len() < 2 {
-                continue;
-            }
-            let junction = nodes[0] as usize;
-            let tip = nodes[nodes.len() - 1] as usize;
-            let shift = positions[junction] - self.solved[junction];
-            let target = if self.caged[c] {
-                self.solved[tip]
-            } else {
-                self.solved[tip] + shift
-            };
-            let chord = positions[junction].distance(target);
-            let g = growth(self.rest_chord[c], self.rest_length[c], chord);
-            let lengths = &self.rest_segment[a as usize..b as usize - 1];
-            let moved = (shift, self.caged[c]);
-            start_pose(
-                &mut self.chain,
-                &self.solved,
-                nodes,
-                lengths,
-                moved,
-                &mut self.scratch,
-            );
-            let arc: f32 = self.chain.windows(2).map(|w| w[0].distance(w[1])).sum();
-            let rest_length = self.rest_length[c];
-            let scale = lengths_scale(g, arc, chord, rest_length);
-            reach(
-                &mut self.chain,
-                lengths,
-                scale,
-                target,
-                REACH * scale * rest_length,
-            );
-            for (&n, &p) in nodes.iter().zip(&self.chain).skip(1) {
+        let this = &*self;
+        for generation in &this.generations {
+            let placed: Vec<Vec<Vec3>> = generation
+                .par_chunks(CHAINS_PER_TASK)
+                .map(|chunk| this.placed(plan, chunk, positions))
+                .collect();
+            let nodes = generation.iter().flat_map(|&c| {
+                let (a, b) = plan.chain_ranges[c as usize];
+                let nodes = &plan.chain_nodes[a as usize..b as usize];
+                nodes.get(1..).filter(|_| nodes.len() >= 2).unwrap_or(&[])
+            });
+            for (&n, p) in nodes.zip(placed.into_iter().flatten()) {
                 positions[n as usize] = p;
             }
         }
+    }
+
+    /// The re-solved nodes of `chains` (but their junctions), one chain
+    /// after another.
+    fn placed(&self, plan: &SketchPlan, chains: &[u32], positions: &[Vec3]) -> Vec<Vec3> {
+        let (mut out, mut chain, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+        for &c in chains {
+            if self.chain(plan, c as usize, positions, &mut chain, &mut scratch) {
+                out.extend_from_slice(&chain[1..]);
+            }
+        }
+        out
+    }
+
+    /// Re-solves chain `c` into `chain`, its junction where its parent
+    /// put it in `positions`; false for a chain of fewer than two nodes.
+    fn chain(
+        &self,
+        plan: &SketchPlan,
+        c: usize,
+        positions: &[Vec3],
+        chain: &mut Vec<Vec3>,
+        scratch: &mut Vec<Vec3>,
+    ) -> bool {
+        let (a, b) = plan.chain_ranges[c];
+        let nodes = &plan.chain_nodes[a as usize..b as usize];
+        if nodes.len() < 2 {
+            return false;
+        }
+        let junction = nodes[0] as usize;
+        let tip = nodes[nodes.len() - 1] as usize;
+        let shift = positions[junction] - self.solved[junction];
+        let target = if self.caged[c] {
+            self.solved[tip]
+        } else {
+            self.solved[tip] + shift
+        };
+        let chord = positions[junction].distance(target);
+        let g = growth(self.rest_chord[c], self.rest_length[c], chord);
+        let lengths = &self.rest_segment[a as usize..b as usize - 1];
+        let moved = (shift, self.caged[c]);
+        start_pose(chain, &self.solved, nodes, lengths, moved, scratch);
+        let arc: f32 = chain.windows(2).map(|w| w[0].distance(w[1])).sum();
+        let rest_length = self.rest_length[c];
+        let scale = lengths_scale(g, arc, chord, rest_length);
+        reach(chain, lengths, scale, target, REACH * scale * rest_length);
+        true
     }
 }
 
@@ -291,22 +313,35 @@ fn toward(from: Vec3, to: Vec3, length: f32) -> Vec3 {
     }
 }
 
-/// Chain ids ordered so that each comes after its parent.
-pub(crate) fn parents_first(parents: &[Option<u32>]) -> Vec<u32> {
+/// Chains re-solved in one parallel task: enough to outweigh the task's
+/// cost (most chains are twigs of a few nodes).
+const CHAINS_PER_TASK: usize = 32;
+
+/// Chain ids by generation: the roots, then their children, and so on
+/// (concatenated, [`parents_first`]'s order).
+fn generations(parents: &[Option<u32>]) -> Vec<Vec<u32>> {
     let mut children = vec![Vec::new(); parents.len()];
-    let mut order: Vec<u32> = Vec::with_capacity(parents.len());
+    let mut generation: Vec<u32> = Vec::new();
     for (c, p) in parents.iter().enumerate() {
         match p {
             Some(p) => children[*p as usize].push(c as u32),
-            None => order.push(c as u32),
+            None => generation.push(c as u32),
         }
     }
-    let mut k = 0;
-    while k < order.len() {
-        order.extend_from_slice(&children[order[k] as usize]);
-        k += 1;
+    let mut out = Vec::new();
+    while !generation.is_empty() {
+        let next = generation
+            .iter()
+            .flat_map(|&c| children[c as usize].iter().copied())
+            .collect();
+        out.push(std::mem::replace(&mut generation, next));
     }
-    order
+    out
+}
+
+/// Chain ids ordered so that each comes after its parent.
+pub(crate) fn parents_first(parents: &[Option<u32>]) -> Vec<u32> {
+    generations(parents).concat()
 }
 
 #[cfg(test)]
@@ -356,5 +391,16 @@ mod tests {
     fn parents_come_first() {
         let order = parents_first(&[Some(2), None, Some(1), Some(0)]);
         assert_eq!(order, vec![1, 2, 0, 3]);
+    }
+
+    /// Every chain's parent is in the generation before its own.
+    #[test]
+    fn generations_follow_parents() {
+        let parents = [Some(2), None, Some(1), Some(0), None, Some(1), Some(4)];
+        let generations = generations(&parents);
+        assert_eq!(
+            generations,
+            vec![vec![1, 4], vec![2, 5, 6], vec![0], vec![3]]
+        );
     }
 }

@@ -25,9 +25,10 @@
 //! The crate is synchronous and does no I/O. [`SketchPlan::new`] does the
 //! per-sketch work once, on every core where its phases allow (`treemorph
 //! bench`, 5,000 branches in release, a staged sketch's pacing included:
-//! 36–45 ms; the foliage fit's four measured t = 1 frames are about half
-//! of it, and the plan without them took 28–35 ms before its phases ran in
-//! parallel); a [`Sketcher`] solves the end pose when made (≈ 1 ms) and
+//! 30–43 ms on a 2-core machine whose figures drift by a fifth; the
+//! foliage fit's four measured t = 1 frames are about half of it, and the
+//! plan without them took 24–37 ms in the same runs, before its phases ran
+//! in parallel); a [`Sketcher`] solves the end pose when made (≈ 1 ms) and
 //! then makes any frame in ≈ 0.2 ms, reusing its buffers.
 //!
 //! # Glossary

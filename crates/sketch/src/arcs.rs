@@ -60,9 +60,10 @@ pub(crate) struct Arcs {
     /// direction, `Q_i`.
     turn: Vec<Quat>,
     /// Per node: its rotation at its clock's end, `slerp(1, Q_i, 1)`,
-    /// computed once per end pose: at a given `t` most chains have not
-    /// started or have finished turning, and their slerps are the
-    /// identity (exactly, at `s = 0`) or this one.
+    /// computed once per end pose: on a staged clock the chains that have
+    /// not started or have finished turning need no slerp (theirs is the
+    /// identity, exactly, at `s = 0`, or this one), and the foliage fit's
+    /// t = 1 frames need none at all.
     turned: Vec<Quat>,
     /// Per node: end length over rest length; `None` for a segment of no
     /// rest length.

@@ -881,7 +881,6 @@ fn probe(eval: &mut impl FnMut(f32, &mut Frame), frame: &mut Frame) -> Probed {
 struct Encoders {
     stream: Option<DeltaStreamWriter>,
     glb: Option<FrameGlbWriter>,
-    keyframes: Keyframes,
 }
 
 /// The animated GLB's builder and the frames that become its keyframes.
@@ -918,11 +917,13 @@ impl Keyframes {
 }
 
 impl Encoders {
+    /// The per-frame encoders and, apart (their work runs beside the
+    /// next frame's), the animated GLB's keyframes.
     fn new(
         topology: &FrameTopology,
         render: &RenderSpec,
         probed: &Probed,
-    ) -> Result<Encoders, JobError> {
+    ) -> Result<(Encoders, Keyframes), JobError> {
         let outputs = &render.outputs;
         let stream = outputs
             .delta
@@ -957,15 +958,12 @@ impl Encoders {
             })
             .transpose()
             .map_err(encode)?;
-        Ok(Encoders {
-            stream,
-            glb,
-            keyframes: Keyframes {
-                animated,
-                picks,
-                ..Keyframes::default()
-            },
-        })
+        let keyframes = Keyframes {
+            animated,
+            picks,
+            ..Keyframes::default()
+        };
+        Ok((Encoders { stream, glb }, keyframes))
     }
 
     /// Encodes frame `i` as a stream record (into `record`; returns the
@@ -999,10 +997,12 @@ impl Encoders {
         Ok((header.map_err(encode)?, glb_bytes.map_err(encode)?))
     }
 
-    /// Publishes the whole-sequence files.
+    /// Publishes the whole-sequence files, the animated GLB from
+    /// `keyframes`.
     fn finish(
         self,
         mut whole_stream: Vec<u8>,
+        keyframes: Keyframes,
         sink: &mut dyn JobSink,
     ) -> Result<(Vec<String>, Option<BasisReport>), JobError> {
         let mut files = Vec::new();
@@ -1012,7 +1012,7 @@ impl Encoders {
             sink.file("stream.tmd", whole_stream).map_err(stored)?;
             files.push("stream.tmd".into());
         }
-        if let Some(builder) = self.keyframes.animated {
+        if let Some(builder) = keyframes.animated {
             sink.stage(stage::FINISHING, 0.96);
             let (bytes, basis) = builder.finish().map_err(encode)?;
             sink.file("animation.glb", bytes).map_err(stored)?;
@@ -1048,7 +1048,7 @@ fn render<M: Send>(
     let frames = spec.frames;
     let mut frame = Frame::default();
     let probed = probe(&mut eval, &mut frame);
-    let mut encoders = Encoders::new(topology, spec, &probed)?;
+    let (mut encoders, mut keyframes) = Encoders::new(topology, spec, &probed)?;
     let mut output_check = spec
         .measured
         .then(|| OutputCheck::new(topology, &probed, &encoders))
@@ -1058,9 +1058,6 @@ fn render<M: Send>(
     // What `construct` said of the frame whose copy waits for its check
     // (see `OutputCheck`).
     let mut waiting = None;
-    // Keyframes are added beside the next frame's work, apart from the
-    // encoders that work reads.
-    let mut keyframes = std::mem::take(&mut encoders.keyframes);
     for i in 0..frames {
         if sink.cancelled() {
             return Err(JobError::cancelled());
@@ -1126,8 +1123,7 @@ fn render<M: Send>(
         measure(&report, m);
     }
     keyframes.add_waiting()?;
-    encoders.keyframes = keyframes;
-    let (files, animation) = encoders.finish(whole_stream, sink)?;
+    let (files, animation) = encoders.finish(whole_stream, keyframes, sink)?;
     Ok(Rendered {
         frames,
         files,

@@ -160,47 +160,43 @@ impl Rigid {
         self.solved.extend_from_slice(positions);
         let this = &*self;
         for generation in &this.generations {
-            let placed: Vec<Vec<Vec3>> = generation
+            let placed: Vec<Vec<(u32, Vec3)>> = generation
                 .par_chunks(CHAINS_PER_TASK)
                 .map(|chunk| this.placed(plan, chunk, positions))
                 .collect();
-            let nodes = generation.iter().flat_map(|&c| {
-                let (a, b) = plan.chain_ranges[c as usize];
-                let nodes = &plan.chain_nodes[a as usize..b as usize];
-                nodes.get(1..).filter(|_| nodes.len() >= 2).unwrap_or(&[])
-            });
-            for (&n, p) in nodes.zip(placed.into_iter().flatten()) {
+            for (n, p) in placed.into_iter().flatten() {
                 positions[n as usize] = p;
             }
         }
     }
 
-    /// The re-solved nodes of `chains` (but their junctions), one chain
-    /// after another.
-    fn placed(&self, plan: &SketchPlan, chains: &[u32], positions: &[Vec3]) -> Vec<Vec3> {
+    /// The re-solved nodes of `chains` (but their junctions) and where
+    /// they go.
+    fn placed(&self, plan: &SketchPlan, chains: &[u32], positions: &[Vec3]) -> Vec<(u32, Vec3)> {
         let (mut out, mut chain, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
         for &c in chains {
-            if self.chain(plan, c as usize, positions, &mut chain, &mut scratch) {
-                out.extend_from_slice(&chain[1..]);
+            if let Some(nodes) = self.chain(plan, c as usize, positions, &mut chain, &mut scratch) {
+                out.extend(nodes[1..].iter().copied().zip(chain[1..].iter().copied()));
             }
         }
         out
     }
 
     /// Re-solves chain `c` into `chain`, its junction where its parent
-    /// put it in `positions`; false for a chain of fewer than two nodes.
-    fn chain(
+    /// put it in `positions`; returns the chain's nodes (`None` for a
+    /// chain of fewer than two).
+    fn chain<'p>(
         &self,
-        plan: &SketchPlan,
+        plan: &'p SketchPlan,
         c: usize,
         positions: &[Vec3],
         chain: &mut Vec<Vec3>,
         scratch: &mut Vec<Vec3>,
-    ) -> bool {
+    ) -> Option<&'p [u32]> {
         let (a, b) = plan.chain_ranges[c];
         let nodes = &plan.chain_nodes[a as usize..b as usize];
         if nodes.len() < 2 {
-            return false;
+            return None;
         }
         let junction = nodes[0] as usize;
         let tip = nodes[nodes.len() - 1] as usize;
@@ -219,7 +215,7 @@ impl Rigid {
         let rest_length = self.rest_length[c];
         let scale = lengths_scale(g, arc, chord, rest_length);
         reach(chain, lengths, scale, target, REACH * scale * rest_length);
-        true
+        Some(nodes)
     }
 }
 

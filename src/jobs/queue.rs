@@ -239,14 +239,21 @@ pub fn frame_glb_key(prefix: &str, n: u32) -> String {
     format!("{prefix}/frames/{n:06}.glb")
 }
 
+/// The blob prefix of an attempt's stream records (its header and frame
+/// records, [`header_key`] and [`frame_delta_key`]): they serve live
+/// viewers while the job runs, and a succeeded job drops them.
+pub fn stream_records_prefix(prefix: &str) -> String {
+    format!("{prefix}/stream")
+}
+
 /// Blob key of frame `n`'s delta record under an attempt prefix.
 pub fn frame_delta_key(prefix: &str, n: u32) -> String {
-    format!("{prefix}/stream/{n:06}.rec")
+    format!("{}/{n:06}.rec", stream_records_prefix(prefix))
 }
 
 /// Blob key of the delta stream header under an attempt prefix.
 pub fn header_key(prefix: &str) -> String {
-    format!("{prefix}/stream/header.rec")
+    format!("{}/header.rec", stream_records_prefix(prefix))
 }
 
 /// Blob key of the job's stored plan under an attempt prefix

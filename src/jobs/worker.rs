@@ -260,7 +260,7 @@ async fn drop_stream_records(services: &Services, row: &JobRow, token: &str) {
     if row.status != JobStatus::Succeeded {
         return;
     }
-    let records = format!("{}/stream", queue::attempt_prefix(&row.id, token));
+    let records = queue::stream_records_prefix(&queue::attempt_prefix(&row.id, token));
     if let Err(e) = services.blobs.delete_prefix(&records).await {
         tracing::warn!(job = %row.id, error = %e, "could not delete the stream records");
     }
@@ -431,13 +431,15 @@ async fn execute(services: &Services, row: &JobRow, token: &str, flags: Arc<Flag
             }),
         };
         let result = catch_unwind(AssertUnwindSafe(|| runner.run(&input, sink.as_mut())));
-        if plan_first && matches!(result, Ok(Ok(_))) {
+        let succeeded = matches!(result, Ok(Ok(_)));
+        if plan_first && succeeded {
             sink.offer_rendered(&requested);
         }
         // Whatever the outcome, the outputs clients may already have seen
-        // become durable before the attempt's end is recorded. A job that
+        // become durable before the attempt's end is recorded (but for a
+        // success's stream records, which its end drops). A job that
         // succeeded but whose outputs cannot be synced is retried.
-        let result = match (result, sink.sync_outputs()) {
+        let result = match (result, sink.sync_outputs(succeeded)) {
             (Ok(Ok(_)), Err(e)) => Ok(Err(JobError {
                 code: ErrorCode::Unavailable,
                 message: e.to_string(),

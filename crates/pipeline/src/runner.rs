@@ -1055,6 +1055,9 @@ fn render<M: Send>(
         .transpose()?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
+    let mut spare = Vec::new();
+    // The last frame computed, published while the next one is.
+    let mut unpublished: Option<Unpublished> = None;
     // What `construct` said of the frame whose copy waits for its check
     // (see `OutputCheck`).
     let mut waiting = None;
@@ -1069,52 +1072,71 @@ fn render<M: Send>(
             Some(c) => (Some(&mut c.checker), Some(&mut c.next)),
             None => (None, None),
         };
-        let (measured, encoded) = rayon::join(
-            || {
-                let (checked, added) = rayon::join(
-                    || match (checker, waiting.take()) {
-                        (Some(check), Some(m)) => check.check().map(|report| measure(&report, m)),
-                        _ => Ok(()),
+        let mut computed = None;
+        // The sink stays on this thread (it need not be `Send`); the frame
+        // is computed on the pool meanwhile.
+        let published = rayon::in_place_scope(|scope| {
+            scope.spawn(|_| {
+                computed = Some(rayon::join(
+                    || {
+                        let (checked, added) = rayon::join(
+                            || match (checker, waiting.take()) {
+                                (Some(check), Some(m)) => {
+                                    check.check().map(|report| measure(&report, m))
+                                }
+                                _ => Ok(()),
+                            },
+                            || keyframes.add_waiting(),
+                        );
+                        checked.and(added)
                     },
-                    || keyframes.add_waiting(),
-                );
-                checked.and(added)
-            },
-            || {
-                eval(t, &mut frame);
-                let eval_ms = ms_since(started);
-                let (constructed, encoded) = rayon::join(
-                    || measuring.then(|| construct(&frame)),
-                    || encode_and_copy(&mut encoders, next, (i, &frame), &mut record),
-                );
-                encoded.map(|out| (out, eval_ms, constructed))
-            },
-        );
+                    || {
+                        eval(t, &mut frame);
+                        let eval_ms = ms_since(started);
+                        let (constructed, encoded) = rayon::join(
+                            || measuring.then(|| construct(&frame)),
+                            || encode_and_copy(&mut encoders, next, (i, &frame), &mut record),
+                        );
+                        encoded.map(|out| (out, eval_ms, constructed))
+                    },
+                ));
+            });
+            unpublished
+                .take()
+                .map(|last| last.publish(&mut whole_stream, sink))
+                .transpose()
+        })?;
+        if let Some(buffer) = published {
+            spare = buffer;
+        }
+        let (measured, encoded) = computed.expect("the scope waits for the frame");
         measured?;
         let ((header, glb), eval_ms, constructed) = encoded?;
         let encoded_ms = ms_since(started);
-        let delta = publish_record(i, header, &record, &mut whole_stream, sink)?;
-        sink.frame(FrameOutput {
+        let done = Unpublished {
             index: i,
             t,
+            header,
             glb,
-            delta,
-        })
-        .map_err(stored)?;
-        let published_ms = ms_since(started);
+            record: std::mem::replace(&mut record, std::mem::take(&mut spare)),
+        };
+        if i == 0 {
+            // The first frame (with the stream header) is what a watching
+            // client waits for: published at once, not beside more work.
+            spare = done.publish(&mut whole_stream, sink)?;
+        } else {
+            unpublished = Some(done);
+        }
         if let Some(check) = &mut output_check {
             check.swap();
             waiting = constructed;
         }
         keyframes.keep(i, &frame);
-        tracing::debug!(
-            frame = i,
-            eval_ms,
-            encoded_ms,
-            published_ms,
-            "frame published"
-        );
+        tracing::debug!(frame = i, eval_ms, encoded_ms, "frame computed");
         sink.stage(stage::FRAMES, 0.1 + 0.85 * (i + 1) as f32 / frames as f32);
+    }
+    if let Some(last) = unpublished {
+        last.publish(&mut whole_stream, sink)?;
     }
     if let Some(check) = &mut output_check
         && let Some(m) = waiting
@@ -1130,6 +1152,40 @@ fn render<M: Send>(
         animation,
         probed,
     })
+}
+
+/// A frame computed and encoded, waiting to be published: [`render`]
+/// publishes each frame while it computes the next, so the sink's writes
+/// and database commits (about 1.5 ms a frame on local storage) overlap
+/// the work rather than follow it.
+struct Unpublished {
+    index: u32,
+    t: f32,
+    /// The stream header's length at the start of `record` (`None`: no
+    /// stream is written).
+    header: Option<usize>,
+    glb: Option<Vec<u8>>,
+    record: Vec<u8>,
+}
+
+impl Unpublished {
+    /// Publishes the frame (its record as [`publish_record`] does);
+    /// hands back the record's buffer for another frame.
+    fn publish(
+        self,
+        whole_stream: &mut Vec<u8>,
+        sink: &mut dyn JobSink,
+    ) -> Result<Vec<u8>, JobError> {
+        let delta = publish_record(self.index, self.header, &self.record, whole_stream, sink)?;
+        sink.frame(FrameOutput {
+            index: self.index,
+            t: self.t,
+            glb: self.glb,
+            delta,
+        })
+        .map_err(stored)?;
+        Ok(self.record)
+    }
 }
 
 /// Encodes frame `i` (see [`Encoders::encode`]), then copies what the

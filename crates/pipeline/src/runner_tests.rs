@@ -22,6 +22,12 @@ struct MemorySink {
     frames: Vec<FrameOutput>,
     files: HashMap<String, Vec<u8>>,
     cancel_after: Option<usize>,
+    /// Refuse the frame of this index, as a full disk would.
+    refuse_frame: Option<u32>,
+    /// Frames reported computed (`stage::FRAMES` progress), and that
+    /// count when each frame was published.
+    computed: usize,
+    computed_at_publish: Vec<usize>,
     /// Keep the job's plan, as the service does.
     keep_plan: bool,
     plan: Option<Vec<u8>>,
@@ -30,6 +36,9 @@ struct MemorySink {
 impl JobSink for MemorySink {
     fn stage(&mut self, stage: &'static str, progress: f32) {
         assert!((0.0..=1.0).contains(&progress), "progress {progress}");
+        if stage == stage::FRAMES {
+            self.computed += 1;
+        }
         if self.events.last().map(String::as_str) != Some(stage) {
             self.events.push(stage.to_owned());
         }
@@ -49,6 +58,13 @@ impl JobSink for MemorySink {
 
     fn frame(&mut self, frame: FrameOutput) -> Result<(), SinkError> {
         assert_eq!(frame.index as usize, self.frames.len(), "frames in order");
+        self.computed_at_publish.push(self.computed);
+        if self.refuse_frame == Some(frame.index) {
+            return Err(SinkError {
+                what: format!("frame {}", frame.index),
+                reason: "no space left on device".into(),
+            });
+        }
         self.frames.push(frame);
         Ok(())
     }
@@ -175,17 +191,49 @@ fn outputs_can_be_switched_off() {
     assert!(sink.frames.iter().all(|f| f.glb.is_none()));
 }
 
+/// Runs a morph of `frames` frames (default outputs) that `sink` stops;
+/// checks that it published `published` frames and no whole-sequence
+/// file, and returns the run's error.
+fn stopped_morph(frames: u32, mut sink: MemorySink, published: usize) -> JobError {
+    let request = morph_request(frames, Outputs::default());
+    let err = run(&request, &morph_trees(), &mut sink).unwrap_err();
+    assert_eq!(sink.frames.len(), published);
+    assert!(sink.files.is_empty());
+    err
+}
+
 #[test]
 fn cancellation_stops_within_one_frame() {
-    let request = morph_request(20, Outputs::default());
-    let mut sink = MemorySink {
+    let sink = MemorySink {
         cancel_after: Some(3),
         ..MemorySink::default()
     };
-    let err = run(&request, &morph_trees(), &mut sink).unwrap_err();
-    assert_eq!(err.code, ErrorCode::Cancelled);
-    assert_eq!(sink.frames.len(), 3);
-    assert!(sink.files.is_empty());
+    assert_eq!(stopped_morph(20, sink, 3).code, ErrorCode::Cancelled);
+}
+
+#[test]
+fn a_frame_the_sink_refuses_ends_the_run_there() {
+    // Frames are published while the next one is computed; a refused
+    // frame still ends the run with the sink's error, before any later
+    // frame or any whole-sequence file.
+    let sink = MemorySink {
+        refuse_frame: Some(4),
+        ..MemorySink::default()
+    };
+    let err = stopped_morph(8, sink, 4);
+    assert_eq!(err.code, ErrorCode::Unavailable);
+    assert!(err.message.contains("no space left"), "{}", err.message);
+}
+
+#[test]
+fn each_frame_is_published_while_the_next_is_computed_but_the_first_at_once() {
+    // The sink's writes overlap the next frame's work; frame 0 (with the
+    // header), which a watching client waits for, goes out before frame
+    // 1 is computed, and the last after the loop.
+    let request = morph_request(5, Outputs::default());
+    let mut sink = MemorySink::default();
+    run(&request, &morph_trees(), &mut sink).unwrap();
+    assert_eq!(sink.computed_at_publish, vec![0, 2, 3, 4, 5]);
 }
 
 fn heart_request(frames: u32) -> JobRequest {

@@ -1055,7 +1055,6 @@ fn render<M: Send>(
         .transpose()?;
     let mut whole_stream = Vec::new();
     let mut record = Vec::new();
-    let mut spare = Vec::new();
     // The last frame computed, published while the next one is.
     let mut unpublished: Option<Unpublished> = None;
     // What `construct` said of the frame whose copy waits for its check
@@ -1075,7 +1074,7 @@ fn render<M: Send>(
         let mut computed = None;
         // The sink stays on this thread (it need not be `Send`); the frame
         // is computed on the pool meanwhile.
-        let published = rayon::in_place_scope(|scope| {
+        rayon::in_place_scope(|scope| {
             scope.spawn(|_| {
                 computed = Some(rayon::join(
                     || {
@@ -1101,14 +1100,11 @@ fn render<M: Send>(
                     },
                 ));
             });
-            unpublished
-                .take()
-                .map(|last| last.publish(&mut whole_stream, sink))
-                .transpose()
+            match unpublished.take() {
+                Some(last) => last.publish(&mut whole_stream, sink),
+                None => Ok(()),
+            }
         })?;
-        if let Some(buffer) = published {
-            spare = buffer;
-        }
         let (measured, encoded) = computed.expect("the scope waits for the frame");
         measured?;
         let ((header, glb), eval_ms, constructed) = encoded?;
@@ -1118,12 +1114,12 @@ fn render<M: Send>(
             t,
             header,
             glb,
-            record: std::mem::replace(&mut record, std::mem::take(&mut spare)),
+            record: std::mem::take(&mut record),
         };
         if i == 0 {
             // The first frame (with the stream header) is what a watching
             // client waits for: published at once, not beside more work.
-            spare = done.publish(&mut whole_stream, sink)?;
+            done.publish(&mut whole_stream, sink)?;
         } else {
             unpublished = Some(done);
         }
@@ -1169,22 +1165,16 @@ struct Unpublished {
 }
 
 impl Unpublished {
-    /// Publishes the frame (its record as [`publish_record`] does);
-    /// hands back the record's buffer for another frame.
-    fn publish(
-        self,
-        whole_stream: &mut Vec<u8>,
-        sink: &mut dyn JobSink,
-    ) -> Result<Vec<u8>, JobError> {
-        let delta = publish_record(self.index, self.header, &self.record, whole_stream, sink)?;
+    /// Publishes the frame (its record as [`publish_record`] does).
+    fn publish(self, whole_stream: &mut Vec<u8>, sink: &mut dyn JobSink) -> Result<(), JobError> {
+        let delta = publish_record(self.index, self.header, self.record, whole_stream, sink)?;
         sink.frame(FrameOutput {
             index: self.index,
             t: self.t,
             glb: self.glb,
             delta,
         })
-        .map_err(stored)?;
-        Ok(self.record)
+        .map_err(stored)
     }
 }
 
@@ -1204,12 +1194,12 @@ fn encode_and_copy(
 }
 
 /// Publishes the stream header before frame 0, appends the record to the
-/// whole stream, and returns the frame's delta (the record without the
-/// header); empty when the stream was not requested.
+/// whole stream, and returns the frame's delta: the record itself, less
+/// the header (no copy); empty when the stream was not requested.
 fn publish_record(
     i: u32,
     header: Option<usize>,
-    record: &[u8],
+    mut record: Vec<u8>,
     whole_stream: &mut Vec<u8>,
     sink: &mut dyn JobSink,
 ) -> Result<Vec<u8>, JobError> {
@@ -1223,8 +1213,9 @@ fn publish_record(
         sink.stream_header(record[..header].to_vec())
             .map_err(stored)?;
     }
-    whole_stream.extend_from_slice(record);
-    Ok(record[header..].to_vec())
+    whole_stream.extend_from_slice(&record);
+    record.drain(..header);
+    Ok(record)
 }
 
 #[cfg(test)]

@@ -221,3 +221,42 @@ pub fn http_client() -> reqwest::Client {
         .build()
         .expect("a client with default settings")
 }
+
+/// Reads SSE events (name, data) until the stream ends.
+pub async fn read_events(mut r: reqwest::Response) -> Vec<(String, Value)> {
+    let mut buf = String::new();
+    let mut events = vec![];
+    while let Some(chunk) = r.chunk().await.unwrap() {
+        buf.push_str(std::str::from_utf8(&chunk).unwrap());
+        while let Some(end) = buf.find("\n\n") {
+            let block: String = buf.drain(..end + 2).collect();
+            let mut name = String::from("message");
+            let mut data = String::new();
+            for line in block.lines() {
+                if let Some(n) = line.strip_prefix("event:") {
+                    name = n.trim().to_owned();
+                } else if let Some(d) = line.strip_prefix("data:") {
+                    data.push_str(d.trim());
+                }
+            }
+            if !data.is_empty() {
+                events.push((name, serde_json::from_str(&data).unwrap()));
+            }
+        }
+    }
+    events
+}
+
+/// The frame indices an event stream reported: those its first `job`
+/// document already counted as ready (a subscriber that connects late
+/// starts from the present, frames included), then each `frame` event.
+pub fn frames_reported(events: &[(String, Value)]) -> Vec<u64> {
+    let (first, _) = events.first().expect("an event stream starts");
+    assert_eq!(first, "job", "the first event is the job document");
+    let ready = events[0].1["frames_ready"].as_u64().unwrap_or(0);
+    let announced = events
+        .iter()
+        .filter(|(n, _)| n == "frame")
+        .map(|(_, d)| d["index"].as_u64().unwrap());
+    (0..ready).chain(announced).collect()
+}

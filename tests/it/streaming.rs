@@ -3,11 +3,10 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use serde_json::Value;
 use treemorph::jobs::testing::TestRunner;
 use treemorph_api::delta::{Decoder, DecoderOptions, Event, decode_all};
 
-use crate::common::{error_code, spawn_with};
+use crate::common::{error_code, frames_reported, read_events, spawn_with};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_stream_delivers_frames_while_the_job_runs_and_completes_afterwards() {
@@ -131,31 +130,6 @@ async fn a_late_stream_subscriber_gets_everything_from_the_start() {
     app.stop().await;
 }
 
-/// Reads SSE events (name, data) until the stream ends.
-async fn read_events(mut r: reqwest::Response) -> Vec<(String, Value)> {
-    let mut buf = String::new();
-    let mut events = vec![];
-    while let Some(chunk) = r.chunk().await.unwrap() {
-        buf.push_str(std::str::from_utf8(&chunk).unwrap());
-        while let Some(end) = buf.find("\n\n") {
-            let block: String = buf.drain(..end + 2).collect();
-            let mut name = String::from("message");
-            let mut data = String::new();
-            for line in block.lines() {
-                if let Some(n) = line.strip_prefix("event:") {
-                    name = n.trim().to_owned();
-                } else if let Some(d) = line.strip_prefix("data:") {
-                    data.push_str(d.trim());
-                }
-            }
-            if !data.is_empty() {
-                events.push((name, serde_json::from_str(&data).unwrap()));
-            }
-        }
-    }
-    events
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sse_reports_state_stages_frames_and_the_end() {
     let app = spawn_with(
@@ -179,12 +153,11 @@ async fn sse_reports_state_stages_frames_and_the_end() {
     assert_eq!(names[0], "job", "{names:?}");
     assert_eq!(*names.last().unwrap(), "done", "{names:?}");
     assert_eq!(events.last().unwrap().1["status"], "succeeded");
-    let frames: Vec<u64> = events
-        .iter()
-        .filter(|(n, _)| n == "frame")
-        .map(|(_, d)| d["index"].as_u64().unwrap())
-        .collect();
-    assert_eq!(frames, (0..8).collect::<Vec<_>>(), "{names:?}");
+    assert_eq!(
+        frames_reported(&events),
+        (0..8).collect::<Vec<_>>(),
+        "{names:?}"
+    );
     assert!(names.contains(&"stage"), "{names:?}");
     let first_frame = names.iter().position(|n| *n == "frame").unwrap();
     assert!(names[..first_frame].contains(&"stage"));
@@ -193,6 +166,29 @@ async fn sse_reports_state_stages_frames_and_the_end() {
     let late = read_events(app.get(&format!("/v1/jobs/{id}/events")).await).await;
     let names: Vec<&str> = late.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, ["job", "done"]);
+    app.stop().await;
+}
+
+/// A subscriber that connects while a job runs, after frames were
+/// published (the race that the scale-out check lost on CI): its opening
+/// job document counts the frames already out, and `frame` events follow
+/// for the rest, each once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sse_subscriber_joining_mid_job_gets_every_frame_once() {
+    let app = spawn_with(
+        Arc::new(TestRunner::slow(Duration::from_millis(40))),
+        |_| {},
+    )
+    .await;
+    let (a, b) = (app.tree(1).await, app.tree(2).await);
+    let (_, job) = app.morph(&a, &b, 12).await;
+    let id = job["id"].as_str().unwrap().to_owned();
+    app.wait_job(&id, |j| j["frames_ready"].as_u64().unwrap() >= 3)
+        .await;
+    let events = read_events(app.get(&format!("/v1/jobs/{id}/events")).await).await;
+    assert!(events[0].1["frames_ready"].as_u64().unwrap() >= 3);
+    assert_eq!(frames_reported(&events), (0..12).collect::<Vec<_>>());
+    assert_eq!(events.last().unwrap().0, "done");
     app.stop().await;
 }
 

@@ -948,6 +948,42 @@ fn stored_plans_of_other_versions_or_damaged_are_refused() {
     assert!(matches!(read(&cut), Err(ReadError::Damaged(_))));
 }
 
+/// A plan stored before plans were compressed in one call (a streamed
+/// zstd frame, which does not record its content size) still reads, to
+/// the same plan.
+#[test]
+fn stored_plans_written_as_a_zstd_stream_still_read() {
+    use crate::stored::{HEADER, read};
+    let (spec, trees) = morph_job(3);
+    let plan = stored_plan_of(&JobInput {
+        spec: &spec,
+        trees: &trees,
+        stored_plan: None,
+    });
+    let body = zstd::decode_all(&plan[HEADER..]).unwrap();
+    let recorded = zstd::zstd_safe::get_frame_content_size(&plan[HEADER..]);
+    assert!(
+        matches!(recorded, Ok(Some(n)) if n == body.len() as u64),
+        "a plan stored now records its size, and is read in one call"
+    );
+    let mut encoder = zstd::Encoder::new(plan[..HEADER].to_vec(), 1).unwrap();
+    encoder.include_checksum(true).unwrap();
+    std::io::Write::write_all(&mut encoder, &body).unwrap();
+    let streamed = encoder.finish().unwrap();
+    assert!(
+        matches!(
+            zstd::zstd_safe::get_frame_content_size(&streamed[HEADER..]),
+            Ok(None)
+        ),
+        "a streamed frame records no content size"
+    );
+    let again = read(&streamed).unwrap();
+    assert!(
+        crate::stored::write(&again.plan, &again.probed) == plan,
+        "another plan read back"
+    );
+}
+
 /// Each frame's measured counts are those of that frame's GLB as written,
 /// checked on its own: the check reads a copy of each frame's meshes while
 /// the next frame is made, and must never see a neighbour's.

@@ -251,9 +251,9 @@ pub async fn read_events(mut r: reqwest::Response) -> Vec<(String, Value)> {
 /// document already counted as ready (a subscriber that connects late
 /// starts from the present, frames included), then each `frame` event.
 pub fn frames_reported(events: &[(String, Value)]) -> Vec<u64> {
-    let (first, _) = events.first().expect("an event stream starts");
+    let (first, job) = events.first().expect("an event stream starts");
     assert_eq!(first, "job", "the first event is the job document");
-    let ready = events[0].1["frames_ready"].as_u64().unwrap_or(0);
+    let ready = job["frames_ready"].as_u64().unwrap_or(0);
     let announced = events
         .iter()
         .filter(|(n, _)| n == "frame")

@@ -789,6 +789,16 @@ fn stored_plan_of(input: &JobInput<'_>) -> Vec<u8> {
     sink.plan.unwrap()
 }
 
+/// The plan a run of the morph job of `frames` frames publishes.
+fn stored_morph_plan(frames: u32) -> Vec<u8> {
+    let (spec, trees) = morph_job(frames);
+    stored_plan_of(&JobInput {
+        spec: &spec,
+        trees: &trees,
+        stored_plan: None,
+    })
+}
+
 /// A plan read back from the bytes a job stored renders what the job's
 /// own plan renders, byte for byte, for a morph and a sketch, without
 /// planning again and without asking for a tree; a stored plan that
@@ -932,12 +942,7 @@ fn a_new_job_of_the_same_trees_and_options_starts_from_their_plan() {
 #[test]
 fn stored_plans_of_other_versions_or_damaged_are_refused() {
     use crate::stored::{ReadError, read};
-    let (spec, trees) = morph_job(3);
-    let plan = stored_plan_of(&JobInput {
-        spec: &spec,
-        trees: &trees,
-        stored_plan: None,
-    });
+    let plan = stored_morph_plan(3);
     assert!(read(&plan).is_ok());
     assert!(matches!(read(b"glTF"), Err(ReadError::NotAPlan)));
     let mut older = plan.clone();
@@ -954,12 +959,7 @@ fn stored_plans_of_other_versions_or_damaged_are_refused() {
 #[test]
 fn stored_plans_written_as_a_zstd_stream_still_read() {
     use crate::stored::{HEADER, read};
-    let (spec, trees) = morph_job(3);
-    let plan = stored_plan_of(&JobInput {
-        spec: &spec,
-        trees: &trees,
-        stored_plan: None,
-    });
+    let plan = stored_morph_plan(3);
     let body = zstd::decode_all(&plan[HEADER..]).unwrap();
     let recorded = zstd::zstd_safe::get_frame_content_size(&plan[HEADER..]);
     assert!(

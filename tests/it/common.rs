@@ -260,3 +260,15 @@ pub fn frames_reported(events: &[(String, Value)]) -> Vec<u64> {
         .map(|(_, d)| d["index"].as_u64().unwrap());
     (0..ready).chain(announced).collect()
 }
+
+/// The stage an event stream reported before its first `frame` event: the
+/// last `stage` event before it, else the stage of its opening `job`
+/// document (a subscriber that connects after the stage began is told it
+/// there, not by an event).
+pub fn stage_before_first_frame(events: &[(String, Value)]) -> Option<String> {
+    let before = events.iter().take_while(|(n, _)| n != "frame");
+    before
+        .filter(|(n, _)| n == "stage" || n == "job")
+        .filter_map(|(_, d)| d["stage"].as_str().map(str::to_owned))
+        .last()
+}

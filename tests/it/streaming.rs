@@ -6,7 +6,9 @@ use std::time::Duration;
 use treemorph::jobs::testing::TestRunner;
 use treemorph_api::delta::{Decoder, DecoderOptions, Event, decode_all};
 
-use crate::common::{error_code, frames_reported, read_events, spawn_with};
+use crate::common::{
+    error_code, frames_reported, read_events, spawn_with, stage_before_first_frame,
+};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_stream_delivers_frames_while_the_job_runs_and_completes_afterwards() {
@@ -158,9 +160,14 @@ async fn sse_reports_state_stages_frames_and_the_end() {
         (0..8).collect::<Vec<_>>(),
         "{names:?}"
     );
-    assert!(names.contains(&"stage"), "{names:?}");
-    let first_frame = names.iter().position(|n| *n == "frame").unwrap();
-    assert!(names[..first_frame].contains(&"stage"));
+    // The stage reaches the subscriber before any frame: by a `stage`
+    // event, or in the opening job document when the subscription came
+    // after the stage began.
+    assert_eq!(
+        stage_before_first_frame(&events).as_deref(),
+        Some("frames"),
+        "{names:?}"
+    );
 
     // A late subscriber to a finished job gets its state and the end.
     let late = read_events(app.get(&format!("/v1/jobs/{id}/events")).await).await;
@@ -188,6 +195,10 @@ async fn sse_subscriber_joining_mid_job_gets_every_frame_once() {
     let events = read_events(app.get(&format!("/v1/jobs/{id}/events")).await).await;
     assert!(events[0].1["frames_ready"].as_u64().unwrap() >= 3);
     assert_eq!(frames_reported(&events), (0..12).collect::<Vec<_>>());
+    // Joining after the frames stage began, it learns the stage from the
+    // opening document: no `stage` event comes before its first frame.
+    assert_eq!(events[0].1["stage"], "frames");
+    assert_eq!(stage_before_first_frame(&events).as_deref(), Some("frames"));
     assert_eq!(events.last().unwrap().0, "done");
     app.stop().await;
 }

@@ -132,3 +132,46 @@ pub(crate) fn read(bytes: &[u8]) -> Result<StoredPlan, ReadError> {
     let body = decompress(&bytes[HEADER..])?;
     postcard::from_bytes(&body).map_err(|e| ReadError::Damaged(e.to_string()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame compressed in one call, so that it records its size.
+    fn one_call(body: &[u8]) -> Vec<u8> {
+        zstd::bulk::compress(body, 3).unwrap()
+    }
+
+    #[test]
+    fn a_frame_claiming_more_than_max_ratio_times_its_size_is_read_as_a_stream() {
+        // A megabyte of zeros compresses far beyond the ratio a plan
+        // reaches: its recorded size is refused for the one-call buffer,
+        // and the stream decoder reads it the same.
+        let body = vec![0u8; 1 << 20];
+        let frame = one_call(&body);
+        let claimed = zstd::zstd_safe::get_frame_content_size(&frame).unwrap();
+        assert_eq!(claimed, Some(body.len() as u64));
+        assert!(claimed.unwrap() > frame.len() as u64 * MAX_RATIO);
+        assert_eq!(decompress(&frame).unwrap(), body);
+    }
+
+    #[test]
+    fn a_truncated_frame_is_damaged_whichever_way_it_is_read() {
+        // Scrambled words, which barely compress (as a plan's floats), and
+        // zeros, which compress beyond the ratio: one call and the stream.
+        let plan_like: Vec<u8> = (0..200_000u32)
+            .flat_map(|i| i.wrapping_mul(2_654_435_761).to_le_bytes())
+            .collect();
+        let zeros = vec![0u8; 1 << 20];
+        for body in [plan_like, zeros] {
+            let frame = one_call(&body);
+            let cut = &frame[..frame.len() - 4];
+            assert!(
+                matches!(decompress(cut), Err(ReadError::Damaged(_))),
+                "{} of {} bytes",
+                cut.len(),
+                frame.len()
+            );
+        }
+    }
+}

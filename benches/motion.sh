@@ -10,7 +10,9 @@
 # ones that grew); coincident the most visible leaves in one frame drawn on
 # top of another with a different material pair (z-fighting copies);
 # crossings the most pairs of branch tubes in one frame passing through
-# each other that touch at neither end; floating the most in one frame, by the output-level check on the delta
+# each other that touch at neither end; siblings the most of those in one
+# frame between limbs of one parent, and sibling_% that count as a
+# percentage of all pairs of limbs on one parent; floating the most in one frame, by the output-level check on the delta
 # stream's meshes.
 #
 # Usage: benches/motion.sh [TREE...]   With no trees, five preset pairs
@@ -41,13 +43,14 @@ figures() {
 import json, sys
 m = json.load(open(sys.argv[1]))
 top = lambda k: max(m[k])
-print("%10.2f %8.4f %12d %9d %10d %9d %8d %8d" % (m["jump_ratio"], top("max_jump"),
+print("%10.2f %8.4f %12d %9d %10d %9d %9d %9.4f %8d %8d" % (m["jump_ratio"], top("max_jump"),
       top("growth_out_of_order"), top("growth_reversals"), top("coincident_leaves"),
-      top("crossings"), top("floating_leaves"), top("floating_branches")))
+      top("crossings"), top("sibling_crossings"), 100 * m["sibling_crossing_share"],
+      top("floating_leaves"), top("floating_branches")))
 PY
 }
-printf '%-28s %-8s %-11s %10s %8s %12s %9s %10s %9s %8s %8s\n' pair schedule matching \
-  jump_ratio max_jump out_of_order reversals coincident crossings f_leaves f_branch
+printf '%-28s %-8s %-11s %10s %8s %12s %9s %10s %9s %9s %9s %8s %8s\n' pair schedule matching \
+  jump_ratio max_jump out_of_order reversals coincident crossings siblings sibling_% f_leaves f_branch
 n=${#trees[@]}
 for ((i = 0; i < n; i++)); do
   a=${trees[$i]} b=${trees[$(((i + 1) % n))]}

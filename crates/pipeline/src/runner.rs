@@ -33,8 +33,10 @@
 //! visible leaves drawn on top of another with a different material pair
 //! (copies of one leaf, which z-fight). Both kinds count `crossings` per
 //! frame: pairs of branch tubes passing through each other that touch at
-//! neither end (`treemorph_verify::crossings`). The summary carries the
-//! largest of each.
+//! neither end (`treemorph_verify::crossings`), and `sibling_crossings`
+//! those of limbs on one parent, with `sibling_pairs` and the largest
+//! share of them crossing in a frame (`sibling_crossing_share`). The
+//! summary carries the largest of each.
 //!
 //! Both kinds run from a [`JobSpec`](crate::JobSpec) converted once, and
 //! share one sequence driver ([`render`]): it samples the
@@ -60,7 +62,9 @@ use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
-use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
+use treemorph_verify::{
+    CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report, sibling_pairs,
+};
 
 use crate::plans::{PlanOf, Planned, Plans, Prepared, Writers};
 use crate::{
@@ -422,7 +426,11 @@ fn run_morph(
         return Err(JobError::internal(format_args!("measuring frames: {e}")));
     }
     let (metrics, summary) = if spec.render.measured {
-        series.into_json(spec.render.frames, plan.endpoint_error(), &crossings)
+        series.into_json(
+            spec.render.frames,
+            plan.endpoint_error(),
+            (&crossings, plan.topology()),
+        )
     } else {
         unmeasured(spec.render.frames)
     };
@@ -481,7 +489,7 @@ impl MorphSeries {
         self,
         frames: u32,
         endpoint: treemorph_morph::EndpointError,
-        crossings: &CrossingMeter,
+        crossings: (&CrossingMeter, &FrameTopology),
     ) -> (Value, Value) {
         let max = |v: &[u32]| v.iter().copied().max().unwrap_or(0);
         let mut summary = json!({
@@ -551,7 +559,7 @@ fn run_sketch(
     )?;
     let (metrics, summary) = if spec.render.measured {
         series
-            .into_json(spec.render.frames, &crossings)
+            .into_json(spec.render.frames, (&crossings, plan.topology()))
             .ok_or_else(|| JobError::internal("no frame was measured"))?
     } else {
         unmeasured(spec.render.frames)
@@ -604,7 +612,11 @@ impl SketchSeries {
 
     /// `metrics.json` and the job's summary metrics; `None` when no frame
     /// was measured.
-    fn into_json(self, frames: u32, crossings: &CrossingMeter) -> Option<(Value, Value)> {
+    fn into_json(
+        self,
+        frames: u32,
+        crossings: (&CrossingMeter, &FrameTopology),
+    ) -> Option<(Value, Value)> {
         let last = self.last?;
         let max_stretch = self.stretch.iter().copied().fold(0.0f32, f32::max);
         let max_growth = self.growth.iter().copied().fold(0.0f32, f32::max);
@@ -661,10 +673,31 @@ impl WrittenSeries {
 
     /// Adds the per-frame counts and the crossings of the frames' branch
     /// tubes to `metrics.json` and their maxima to the summary, under the
-    /// names both have always had (`crossings` is new).
-    fn write_into(self, crossings: &CrossingMeter, metrics: &mut Value, summary: &mut Value) {
+    /// names both have always had (`crossings` is new). Of the crossings,
+    /// those between limbs of one parent (`sibling_crossings`) are also
+    /// given as a share of all such pairs of the topology
+    /// (`sibling_crossing_share`, the most in a frame), the figure the
+    /// matching's crossing cost answers for on any tree.
+    fn write_into(
+        self,
+        (meter, topology): (&CrossingMeter, &FrameTopology),
+        metrics: &mut Value,
+        summary: &mut Value,
+    ) {
         let max = |v: &[u32]| v.iter().max().copied().unwrap_or(0);
-        let crossings = crossings.crossings();
+        let parents = topology.strand_parents();
+        let siblings = meter.sibling_crossings(&parents);
+        let pairs = sibling_pairs(&parents);
+        let share = if pairs == 0 {
+            0.0
+        } else {
+            f64::from(max(&siblings)) / pairs as f64
+        };
+        summary["sibling_crossing_share"] = share.into();
+        metrics["sibling_crossings"] = siblings.into();
+        metrics["sibling_pairs"] = pairs.into();
+        metrics["sibling_crossing_share"] = share.into();
+        let crossings = meter.crossings();
         summary["floating_branches"] = max(&self.floating_branches).into();
         summary["floating_leaves"] = max(&self.floating_leaves).into();
         summary["crossings"] = max(&crossings).into();

@@ -291,6 +291,24 @@ fn assert_no_floating(metrics: &Value) {
         (&crossings[0], crossings.last().unwrap()),
         (&0.into(), &0.into())
     );
+    // Sibling crossings are some of the crossings, counted per frame, and
+    // their share is of the topology's pairs of limbs on one parent.
+    let siblings = metrics["sibling_crossings"].as_array().unwrap();
+    assert_eq!(siblings.len(), crossings.len());
+    assert!(
+        siblings
+            .iter()
+            .zip(crossings)
+            .all(|(s, c)| s.as_u64() <= c.as_u64())
+    );
+    let pairs = metrics["sibling_pairs"].as_u64().unwrap();
+    assert!(pairs > 0, "a generated tree has limbs on one parent");
+    let most = siblings.iter().filter_map(Value::as_u64).max().unwrap();
+    let share = metrics["sibling_crossing_share"].as_f64().unwrap();
+    assert!(
+        (share - most as f64 / pairs as f64).abs() < 1e-12,
+        "{share}"
+    );
 }
 
 #[test]

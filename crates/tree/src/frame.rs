@@ -170,6 +170,44 @@ impl FrameTopology {
     pub fn node_count(&self) -> usize {
         self.parents.len()
     }
+
+    /// The strand each node belongs to, as the mesher assigns it: the
+    /// strand holding the branch that ends at it, else the first strand
+    /// starting there (`None` for a node on no strand).
+    pub fn node_owners(&self) -> Vec<Option<u32>> {
+        let mut owner = vec![None; self.node_count()];
+        for (s, ids) in self.strands.iter().enumerate() {
+            for &id in ids.iter().skip(1) {
+                owner[id as usize].get_or_insert(s as u32);
+            }
+        }
+        for (s, ids) in self.strands.iter().enumerate() {
+            if let Some(&first) = ids.first() {
+                owner[first as usize].get_or_insert(s as u32);
+            }
+        }
+        owner
+    }
+
+    /// Each strand's parent strand: the owner ([`FrameTopology::node_owners`])
+    /// of its first node when another strand owns it (a strand that starts
+    /// at its junction), else the owner of that node's parent node (a
+    /// strand that starts just past it); `None` for a root strand.
+    pub fn strand_parents(&self) -> Vec<Option<u32>> {
+        let node_owner = self.node_owners();
+        self.strands
+            .iter()
+            .enumerate()
+            .map(|(s, ids)| {
+                let first = *ids.first()? as usize;
+                let other = |o: &u32| *o != s as u32;
+                node_owner[first].filter(other).or_else(|| {
+                    let parent = self.parents.get(first).copied().flatten()?;
+                    node_owner[parent as usize].filter(other)
+                })
+            })
+            .collect()
+    }
 }
 
 /// A leaf in one frame.

@@ -22,6 +22,8 @@
 //! capsules' bounds: a collision crate would bring a physics engine.
 
 use glam::Vec3;
+#[cfg(doc)]
+use treemorph_tree::FrameTopology;
 use treemorph_tree::{Frame, Strands};
 
 use crate::geometry::segment_segment_sq;
@@ -85,6 +87,23 @@ impl CrossingMeter {
             .filter(move |p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
     }
 
+    /// Per frame measured: how many of its crossings
+    /// ([`CrossingMeter::crossing_pairs`]) are between two pieces of one
+    /// parent piece, `parents` giving each piece's parent piece (as
+    /// [`FrameTopology::strand_parents`] does): limbs of one branch
+    /// passing through each other, which the morph's matching is meant to
+    /// avoid, apart from limbs of one subtree swinging through another's.
+    pub fn sibling_crossings(&self, parents: &[Option<u32>]) -> Vec<u32> {
+        let parent = |piece: u32| parents.get(piece as usize).copied().flatten();
+        (0..self.frames.len())
+            .map(|i| {
+                self.crossing_pairs(i)
+                    .filter(|&(a, b)| parent(a).is_some() && parent(a) == parent(b))
+                    .count() as u32
+            })
+            .collect()
+    }
+
     /// The frame's drawn segments as capsules.
     fn collect(&mut self, strands: &Strands, frame: &Frame) {
         self.capsules.clear();
@@ -137,6 +156,20 @@ impl CrossingMeter {
     }
 }
 
+/// How many pairs of pieces share a parent piece (`parents` as for
+/// [`CrossingMeter::sibling_crossings`]): what a count of sibling
+/// crossings is a share of. Pieces that are drawn at one end of the
+/// sequence only (growing or wilting) count too.
+pub fn sibling_pairs(parents: &[Option<u32>]) -> u64 {
+    let mut children = vec![0u64; parents.len()];
+    for p in parents.iter().flatten() {
+        if let Some(n) = children.get_mut(*p as usize) {
+            *n += 1;
+        }
+    }
+    children.iter().map(|n| n * n.saturating_sub(1) / 2).sum()
+}
+
 /// The piece pair of two overlapping capsules of different pieces that
 /// share no node (a child's first segment starts on its parent's node).
 fn overlap(p: &Capsule, q: &Capsule) -> Option<(u32, u32)> {
@@ -177,6 +210,38 @@ mod tests {
             positions,
             ..Frame::default()
         }
+    }
+
+    #[test]
+    fn sibling_crossings_count_pieces_of_one_parent() {
+        // A trunk (piece 0) with a limb at each of its two upper nodes;
+        // the upper limb swings down through the lower one and back.
+        let strands = Strands::from_polylines([vec![0u32, 1, 2], vec![1, 3], vec![2, 4]]);
+        let at = |z: f32| {
+            frame(
+                vec![
+                    Vec3::ZERO,
+                    Vec3::new(0.0, 1.0, 0.0),
+                    Vec3::new(0.0, 2.0, 0.0),
+                    Vec3::new(1.0, 2.0, 0.0),
+                    Vec3::new(1.0, 1.0, z),
+                ],
+                0.02,
+            )
+        };
+        let mut meter = CrossingMeter::new();
+        for z in [1.0, 0.0, 1.0] {
+            meter.push(&strands, &at(z));
+        }
+        assert_eq!(meter.crossings(), [0, 1, 0]);
+        let siblings = [None, Some(0), Some(0)];
+        assert_eq!(meter.sibling_crossings(&siblings), [0, 1, 0]);
+        assert_eq!(meter.sibling_crossings(&[None, Some(0), None]), [0, 0, 0]);
+        assert_eq!(sibling_pairs(&siblings), 1);
+        assert_eq!(
+            sibling_pairs(&[None, Some(0), Some(0), Some(0), Some(1)]),
+            3
+        );
     }
 
     #[test]

@@ -53,7 +53,9 @@ use treemorph_morph::{MorphOptions, MorphPlan, Morpher};
 use treemorph_sketch::{Sketch, SketchMetrics, SketchOptions, SketchPlan, Sketcher, View};
 use treemorph_tree::{Frame, FrameTopology};
 use treemorph_verify::geometry::point_triangle_sq;
-use treemorph_verify::{Plausibility, PlausibilityOptions, Report, read_glb};
+use treemorph_verify::{
+    CrossingMeter, Plausibility, PlausibilityOptions, Report, read_glb, sibling_pairs,
+};
 
 /// The crown shapes every tree is sketched into.
 const SHAPES: [&str; 6] = ["cone", "column", "umbrella", "ellipse", "lean", "heart"];
@@ -153,7 +155,7 @@ fn third_party_trees_meet_the_acceptance_figures() {
     let mut table = String::new();
     writeln!(
         table,
-        "| tree | family | branches | leaves | import p95 wood→bark / bark→wood (% h) | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | skinned error (% h) | second morph → | max fl/fb | endpoint p95 (% h) | skinned error (% h) | {} |",
+        "| tree | family | branches | leaves | import p95 wood→bark / bark→wood (% h) | frame 0 fl/fb | morph → | morph max fl/fb | endpoint p95 (% h) | sibling crossings (%) | skinned error (% h) | second morph → | max fl/fb | endpoint p95 (% h) | sibling crossings (%) | skinned error (% h) | {} |",
         SHAPES.join(" IoU before → after (max fl/fb) | ")
     )
     .unwrap();
@@ -312,7 +314,7 @@ fn morph_cell(ends: Option<Ends>, skinned: bool, failures: &mut Failures) -> Str
         target: (target, target_surface),
     }) = ends
     else {
-        return " — | — | — | — |".into();
+        return " — | — | — | — | — |".into();
     };
     let label = format!("{} → {}", source.name, target.name);
     let plan = MorphPlan::new(
@@ -341,15 +343,39 @@ fn morph_cell(ends: Option<Ends>, skinned: bool, failures: &mut Failures) -> Str
             format!("{label}: {which} frame's p95 distance to its input is {p:.2} % of height")
         });
     }
+    let siblings = sibling_crossing_percent(plan.topology(), &mut morpher);
     let skin = if skinned {
         skinned_cell(&label, plan.topology(), &mut morpher, failures)
     } else {
         "—".into()
     };
     format!(
-        " {} | {fl}/{fb} | {start:.3} / {end:.3} | {skin} |",
+        " {} | {fl}/{fb} | {start:.3} / {end:.3} | {siblings} | {skin} |",
         target.name
     )
+}
+
+/// The most crossings in one frame between limbs of one parent, as a
+/// percentage of the pairs of limbs on one parent in the morph's topology
+/// (issue 19 asks for at most 1 % on trees from other tools), with the
+/// count: printed, not checked yet.
+fn sibling_crossing_percent(topology: &FrameTopology, morpher: &mut Morpher) -> String {
+    let n = frames().max(2);
+    let mut meter = CrossingMeter::new();
+    let mut frame = Frame::default();
+    for i in 0..n {
+        morpher.morph(i as f32 / (n - 1) as f32, &mut frame);
+        meter.push(&topology.strands, &frame);
+    }
+    let parents = topology.strand_parents();
+    let most = meter
+        .sibling_crossings(&parents)
+        .into_iter()
+        .max()
+        .unwrap_or(0);
+    let pairs = sibling_pairs(&parents);
+    let percent = 100.0 * f64::from(most) / pairs.max(1) as f64;
+    format!("{percent:.3} ({most} of {pairs})")
 }
 
 /// The skinned animation's error as a table cell, checked against

@@ -74,8 +74,8 @@ impl Rig {
         cap: usize,
     ) -> Rig {
         let strands = topology.strands.len();
-        let node_owner = node_owners(topology);
-        let parents = strand_parents(topology, &node_owner);
+        let node_owner = topology.node_owners();
+        let parents = topology.strand_parents();
         let vertex_strand: Vec<Option<u32>> = owners
             .iter()
             .map(|&(s, _)| Some(s))
@@ -113,43 +113,6 @@ impl Rig {
         }
         out
     }
-}
-
-/// The strand each node belongs to, as the mesher assigns it: the strand
-/// holding the branch that ends at it, else the first strand starting
-/// there.
-fn node_owners(topology: &FrameTopology) -> Vec<Option<u32>> {
-    let mut owner = vec![None; topology.node_count()];
-    for (s, ids) in topology.strands.iter().enumerate() {
-        for &id in ids.iter().skip(1) {
-            owner[id as usize].get_or_insert(s as u32);
-        }
-    }
-    for (s, ids) in topology.strands.iter().enumerate() {
-        if let Some(&first) = ids.first() {
-            owner[first as usize].get_or_insert(s as u32);
-        }
-    }
-    owner
-}
-
-/// Each strand's parent: the owner of its first node when another (a
-/// strand that starts at its junction), else the owner of that node's
-/// parent node (a strand that starts just past it).
-fn strand_parents(topology: &FrameTopology, node_owner: &[Option<u32>]) -> Vec<Option<u32>> {
-    topology
-        .strands
-        .iter()
-        .enumerate()
-        .map(|(s, ids)| {
-            let first = *ids.first()? as usize;
-            let other = |o: &u32| *o != s as u32;
-            node_owner[first].filter(other).or_else(|| {
-                let parent = topology.parents.get(first).copied().flatten()?;
-                node_owner[parent as usize].filter(other)
-            })
-        })
-        .collect()
 }
 
 /// How much a difference in timing weighs against merging a joint into

@@ -62,9 +62,7 @@ use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
-use treemorph_verify::{
-    CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report, sibling_pairs,
-};
+use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::plans::{PlanOf, Planned, Plans, Prepared, Writers};
 use crate::{
@@ -685,17 +683,11 @@ impl WrittenSeries {
         summary: &mut Value,
     ) {
         let max = |v: &[u32]| v.iter().max().copied().unwrap_or(0);
-        let parents = topology.strand_parents();
-        let siblings = meter.sibling_crossings(&parents);
-        let pairs = sibling_pairs(&parents);
-        let share = if pairs == 0 {
-            0.0
-        } else {
-            f64::from(max(&siblings)) / pairs as f64
-        };
+        let siblings = meter.sibling_crossings(&topology.strand_parents());
+        let share = siblings.share();
         summary["sibling_crossing_share"] = share.into();
-        metrics["sibling_crossings"] = siblings.into();
-        metrics["sibling_pairs"] = pairs.into();
+        metrics["sibling_crossings"] = siblings.per_frame.into();
+        metrics["sibling_pairs"] = siblings.pairs.into();
         metrics["sibling_crossing_share"] = share.into();
         let crossings = meter.crossings();
         summary["floating_branches"] = max(&self.floating_branches).into();

@@ -22,8 +22,6 @@
 //! capsules' bounds: a collision crate would bring a physics engine.
 
 use glam::Vec3;
-#[cfg(doc)]
-use treemorph_tree::FrameTopology;
 use treemorph_tree::{Frame, Strands};
 
 use crate::geometry::segment_segment_sq;
@@ -87,21 +85,25 @@ impl CrossingMeter {
             .filter(move |p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
     }
 
-    /// Per frame measured: how many of its crossings
-    /// ([`CrossingMeter::crossing_pairs`]) are between two pieces of one
-    /// parent piece, `parents` giving each piece's parent piece (as
-    /// [`FrameTopology::strand_parents`] does): limbs of one branch
-    /// passing through each other, which the morph's matching is meant to
-    /// avoid, apart from limbs of one subtree swinging through another's.
-    pub fn sibling_crossings(&self, parents: &[Option<u32>]) -> Vec<u32> {
+    /// The crossings ([`CrossingMeter::crossing_pairs`]) between two
+    /// pieces of one parent piece, `parents` giving each piece's parent
+    /// piece (as [`treemorph_tree::FrameTopology::strand_parents`] does):
+    /// limbs of one branch passing through each other, which the morph's
+    /// matching is meant to avoid, apart from limbs of one subtree
+    /// swinging through another's.
+    pub fn sibling_crossings(&self, parents: &[Option<u32>]) -> SiblingCrossings {
         let parent = |piece: u32| parents.get(piece as usize).copied().flatten();
-        (0..self.frames.len())
+        let per_frame = (0..self.frames.len())
             .map(|i| {
                 self.crossing_pairs(i)
                     .filter(|&(a, b)| parent(a).is_some() && parent(a) == parent(b))
                     .count() as u32
             })
-            .collect()
+            .collect();
+        SiblingCrossings {
+            per_frame,
+            pairs: sibling_pairs(parents),
+        }
     }
 
     /// The frame's drawn segments as capsules.
@@ -156,11 +158,36 @@ impl CrossingMeter {
     }
 }
 
-/// How many pairs of pieces share a parent piece (`parents` as for
-/// [`CrossingMeter::sibling_crossings`]): what a count of sibling
-/// crossings is a share of. Pieces that are drawn at one end of the
-/// sequence only (growing or wilting) count too.
-pub fn sibling_pairs(parents: &[Option<u32>]) -> u64 {
+/// Crossings between limbs of one parent ([`CrossingMeter::sibling_crossings`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SiblingCrossings {
+    /// Per frame measured: how many pairs of limbs on one parent cross.
+    pub per_frame: Vec<u32>,
+    /// How many pairs of pieces share a parent piece: what the counts are
+    /// a share of. Pieces drawn at one end of the sequence only (growing
+    /// or wilting) count too.
+    pub pairs: u64,
+}
+
+impl SiblingCrossings {
+    /// The most in one frame.
+    pub fn most(&self) -> u32 {
+        self.per_frame.iter().copied().max().unwrap_or(0)
+    }
+
+    /// [`SiblingCrossings::most`] as a share of
+    /// [`SiblingCrossings::pairs`] (0 without pairs).
+    pub fn share(&self) -> f64 {
+        if self.pairs == 0 {
+            0.0
+        } else {
+            f64::from(self.most()) / self.pairs as f64
+        }
+    }
+}
+
+/// How many pairs of pieces share a parent piece.
+fn sibling_pairs(parents: &[Option<u32>]) -> u64 {
     let mut children = vec![0u64; parents.len()];
     for p in parents.iter().flatten() {
         if let Some(n) = children.get_mut(*p as usize) {
@@ -235,8 +262,11 @@ mod tests {
         }
         assert_eq!(meter.crossings(), [0, 1, 0]);
         let siblings = [None, Some(0), Some(0)];
-        assert_eq!(meter.sibling_crossings(&siblings), [0, 1, 0]);
-        assert_eq!(meter.sibling_crossings(&[None, Some(0), None]), [0, 0, 0]);
+        assert_eq!(meter.sibling_crossings(&siblings).per_frame, [0, 1, 0]);
+        assert_eq!(
+            meter.sibling_crossings(&[None, Some(0), None]).per_frame,
+            [0, 0, 0]
+        );
         assert_eq!(sibling_pairs(&siblings), 1);
         assert_eq!(
             sibling_pairs(&[None, Some(0), Some(0), Some(0), Some(1)]),

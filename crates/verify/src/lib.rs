@@ -89,7 +89,7 @@ mod grid;
 pub mod plausibility;
 mod sweep;
 
-pub use crossings::{CrossingMeter, sibling_pairs};
+pub use crossings::{CrossingMeter, SiblingCrossings};
 pub use glb::{GlbMeshes, ReadGlbError, read_glb};
 pub use plausibility::{
     FloatingLeaf, FloatingPiece, LeafLayout, MeshView, Plausibility, PlausibilityOptions, Report,

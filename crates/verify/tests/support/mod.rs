@@ -143,11 +143,23 @@ pub fn check_frames(
     n: u32,
     eval: impl FnMut(f32, &mut Frame),
 ) -> Vec<Report> {
+    check_frames_and(topology, n, eval, |_| {})
+}
+
+/// [`check_frames`], handing each frame to `also` as well (another
+/// measure of the same frames, without evaluating them again).
+pub fn check_frames_and(
+    topology: &FrameTopology,
+    n: u32,
+    eval: impl FnMut(f32, &mut Frame),
+    mut also: impl FnMut(&Frame),
+) -> Vec<Report> {
     let mut check = Plausibility::new();
     let options = PlausibilityOptions::default();
     let mut reports = Vec::new();
-    write_frames(topology, n, eval, |_, view| {
+    write_frames(topology, n, eval, |frame, view| {
         reports.push(check.check(&view, &options).unwrap());
+        also(frame);
     });
     reports
 }

@@ -607,6 +607,9 @@ impl MorphPlan {
             heights,
         )?;
         if options.schedule.kind == ScheduleKind::Staged {
+            if options.route_round {
+                crate::routing::route(&mut plan);
+            }
             plan.schedule.pace = pace(&plan, options.schedule.easing);
         }
         plan.endpoint = plan.measure_endpoints(source, target);
@@ -996,6 +999,8 @@ impl ChainLayout {
                 cs.map_or(0.0, |c| c.radii[0].min(c.radii[1])),
                 ct.map_or(0.0, |c| c.radii[0].min(c.radii[1])),
             ],
+            detour: Vec3::ZERO,
+            lift: 0.0,
         });
         self.sides.push([proto.source, proto.target]);
         self.chains.push(UnionChain {

@@ -41,7 +41,10 @@
 //! - **schedule** ([`ScheduleOptions`]): when each operation happens.
 //!   Staged (default): shed, reshape, grow, parents before twigs, growth
 //!   from the tip, paced to even speed; linear: the paper's single clock
-//!   (see `schedule.rs` for the choices).
+//!   (see `schedule.rs` for the choices). A staged plan also routes limbs
+//!   round the siblings they would pass through and lifts junctions that
+//!   slide past a sibling's off the parent's axis
+//!   ([`MorphOptions::route_round`]; `routing.rs`).
 //! - **MTSW** (§7): maximum main-trunk support weight, the pipe-model
 //!   measure of how smoothly the weight of a crown moves between trunks.
 //!
@@ -296,6 +299,7 @@ mod metrics;
 mod morpher;
 mod options;
 mod plan;
+mod routing;
 mod schedule;
 mod staging;
 

@@ -205,7 +205,9 @@ fn blend_chain(
     let ChainOut { pos, rad, frames } = out;
     let k = own.len();
     let op = chain.operation;
-    pos[0] = junction;
+    let turn = detour_turn(chain.detour, w);
+    pos[0] = junction + lifted(chain.lift, &own[0], (anchor, turn), w);
+    let anchor = anchor * turn;
     for i in 0..k - 1 {
         let s = &own[i];
         let wi = point_weight(op, slow_down, own_u[i + 1], w);
@@ -226,6 +228,31 @@ fn blend_chain(
     let wi = point_weight(op, slow_down, own_u[1], w);
     let jr = chain.junction_radius;
     rad[0] = (jr[0] + (jr[1] - jr[0]) * wi).max(0.0);
+}
+
+/// The turn of a chain blended with weight `w` by its detour, in its
+/// anchor frame: none at either end (`4w(1 − w)` is exactly 0 there), all
+/// of it half way.
+#[inline]
+pub(crate) fn detour_turn(detour: Vec3, w: f32) -> Quat {
+    if detour == Vec3::ZERO || w <= 0.0 || w >= 1.0 {
+        return Quat::IDENTITY;
+    }
+    Quat::from_scaled_axis(detour * (4.0 * w * (1.0 - w)))
+}
+
+/// How far a blended chain's junction node stands off its parent's axis
+/// at `w`: `4w(1 − w)` of its lift, square to the parent (the anchor's y
+/// axis) towards where the chain's first segment, turned by `turn`,
+/// leaves it (see `routing`).
+#[inline]
+fn lifted(lift: f32, first: &Sample, (anchor, turn): (Quat, Quat), w: f32) -> Vec3 {
+    if lift == 0.0 || w <= 0.0 || w >= 1.0 {
+        return Vec3::ZERO;
+    }
+    let out = turn * arc(first.dir, first.dir_perp, first.theta, w);
+    let across = Vec3::new(out.x, 0.0, out.z).normalize_or_zero();
+    anchor * across * (lift * 4.0 * w * (1.0 - w))
 }
 
 /// A growing or wilting chain grown `reach` metres from its junction along
@@ -465,6 +492,24 @@ impl<'p> Morpher<'p> {
         self.plan
     }
 
+    /// The junction and anchor frame (the parent's frame there) of every
+    /// union chain in `frame`, the frame this morpher wrote last.
+    pub(crate) fn anchors(&self, frame: &Frame) -> Vec<(Vec3, Quat)> {
+        let plan = self.plan;
+        let t = plan.schedule.paced(frame.t);
+        let root = plan.root_at(t);
+        let (u, inv_span) = (&plan.sample_u, &plan.sample_inv_span);
+        (plan.chain_plans.iter().enumerate())
+            .map(|(i, c)| {
+                let w = match plan.schedule.chain(i, t) {
+                    ChainState::Blend(w) => w,
+                    ChainState::Reach(_) => 0.0,
+                };
+                junction(c, u, inv_span, root, w, &frame.positions, &self.frames)
+            })
+            .collect()
+    }
+
     /// A frame of the topology's size (the tree at t = 0).
     pub fn new_frame(&mut self) -> Frame {
         let mut frame = Frame::default();
@@ -472,10 +517,9 @@ impl<'p> Morpher<'p> {
         frame
     }
 
-    /// Writes the in-between tree at time `t` (clamped to [0, 1]; NaN is
-    /// taken as 0) into `frame`, resizing it to the topology first if
-    /// needed.
-    pub fn morph(&mut self, t: f32, frame: &mut Frame) {
+    /// The branches of [`Morpher::morph`] alone: positions, radii and bark
+    /// blend, the leaves left as they were.
+    pub(crate) fn morph_branches(&mut self, t: f32, frame: &mut Frame) {
         let plan = self.plan;
         let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
         let nodes = plan.topology.node_count();
@@ -484,16 +528,6 @@ impl<'p> Morpher<'p> {
         frame.bark_blend = plan.schedule.overall(t);
         frame.positions.resize(nodes, Vec3::ZERO);
         frame.radii.resize(nodes, 0.0);
-        frame.leaves.resize(
-            plan.leaf_plans.len(),
-            FrameLeaf {
-                anchor: Vec3::ZERO,
-                orientation: Quat::IDENTITY,
-                width: 0.0,
-                height: 0.0,
-                blend: 0.0,
-            },
-        );
         frame.positions[0] = plan.root_at(t);
         let root_w = plan.schedule.overall(t);
         frame.radii[0] = plan.root_radius[0] + (plan.root_radius[1] - plan.root_radius[0]) * root_w;
@@ -525,11 +559,29 @@ impl<'p> Morpher<'p> {
                 parallel,
             );
         }
+    }
 
+    /// Writes the in-between tree at time `t` (clamped to [0, 1]; NaN is
+    /// taken as 0) into `frame`, resizing it to the topology first if
+    /// needed.
+    pub fn morph(&mut self, t: f32, frame: &mut Frame) {
+        self.morph_branches(t, frame);
+        let plan = self.plan;
+        let t = plan.schedule.paced(frame.t);
+        frame.leaves.resize(
+            plan.leaf_plans.len(),
+            FrameLeaf {
+                anchor: Vec3::ZERO,
+                orientation: Quat::IDENTITY,
+                width: 0.0,
+                height: 0.0,
+                blend: 0.0,
+            },
+        );
         let positions = &frame.positions;
         let radii = &frame.radii;
         let frames = &self.frames;
-        if parallel {
+        if plan.parallel {
             frame
                 .leaves
                 .par_chunks_mut(LEAVES_PER_TASK)

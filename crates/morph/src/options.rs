@@ -182,6 +182,9 @@ pub struct MorphOptions {
     pub slow_down: bool,
     /// When each operation happens (default staged).
     pub schedule: ScheduleOptions,
+    /// Staged: a limb that still swings through a sibling after the
+    /// matching bows round it mid-window (`routing.rs`; default true).
+    pub route_round: bool,
     /// Union nodes plus leaves above which a frame is computed with rayon
     /// (default 20,000); smaller trees run on the calling thread.
     pub parallel_threshold: usize,
@@ -198,6 +201,7 @@ impl Default for MorphOptions {
             leaf_morph: LeafMorph::OnChains,
             slow_down: true,
             schedule: ScheduleOptions::default(),
+            route_round: true,
             parallel_threshold: 20_000,
         }
     }
@@ -241,6 +245,14 @@ impl MorphOptions {
     /// These options with the slow-down coefficient on or off.
     pub fn with_slow_down(self, slow_down: bool) -> MorphOptions {
         MorphOptions { slow_down, ..self }
+    }
+
+    /// These options with routing round siblings on or off.
+    pub fn with_route_round(self, route_round: bool) -> MorphOptions {
+        MorphOptions {
+            route_round,
+            ..self
+        }
     }
 
     /// These options with another schedule.

@@ -75,6 +75,13 @@ pub(crate) struct ChainPlan {
     /// Radius of the junction node at t = 0 and 1: the side chain's
     /// `min(r_junction, r_first_node)`, independent of the resampling.
     pub junction_radius: [f32; 2],
+    /// A turn about the junction, in the anchor frame (axis times angle,
+    /// radians), that the chain makes mid-blend to clear its siblings:
+    /// applied with `4w(1 − w)` of its angle (see `routing`).
+    pub detour: Vec3,
+    /// How far, metres, the junction node stands off the parent's axis
+    /// half way through the blend (see `routing`).
+    pub lift: f32,
 }
 
 /// Per-sample data: the segment to the next sample and the frame at the

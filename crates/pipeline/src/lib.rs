@@ -339,7 +339,10 @@ pub enum StreamPart {
 ///   plans are stored (`plan.bin`).
 /// - 7: a basis or skinned `animation.glb` has quad leaves
 ///   (`treemorph_gltf::animated::ANIMATED_MESH`).
-pub const RENDER_VERSION: u32 = 7;
+/// - 8: a staged morph routes limbs round the siblings they would pass
+///   through, and lifts sliding junctions off their parent's axis (the
+///   plan's chains carry `detour` and `lift`).
+pub const RENDER_VERSION: u32 = 8;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

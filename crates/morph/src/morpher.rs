@@ -205,9 +205,10 @@ fn blend_chain(
     let ChainOut { pos, rad, frames } = out;
     let k = own.len();
     let op = chain.operation;
-    let turn = detour_turn(chain.detour, w);
-    pos[0] = junction + lifted(chain.lift, &own[0], (anchor, turn), w);
-    let anchor = anchor * turn;
+    // The lifted junction turns with the chain: routing models the detour
+    // as a turn of all of it about the junction on the parent's axis.
+    let anchor = anchor * detour_turn(chain.detour, w);
+    pos[0] = junction + anchor * lifted(chain.lift, &own[0], w);
     for i in 0..k - 1 {
         let s = &own[i];
         let wi = point_weight(op, slow_down, own_u[i + 1], w);
@@ -241,18 +242,28 @@ pub(crate) fn detour_turn(detour: Vec3, w: f32) -> Quat {
     Quat::from_scaled_axis(detour * (4.0 * w * (1.0 - w)))
 }
 
-/// How far a blended chain's junction node stands off its parent's axis
-/// at `w`: `4w(1 − w)` of its lift, square to the parent (the anchor's y
-/// axis) towards where the chain's first segment, turned by `turn`,
-/// leaves it (see `routing`).
+/// How far the part of a chain's first direction square to its parent
+/// must reach for its junction to stand off the axis by its whole lift
+/// (the sine of 30°).
+const LIFT_FULL: f32 = 0.5;
+
+/// Where a blended chain's junction node stands off its parent's axis at
+/// `w`, in its anchor frame before any detour: `4w(1 − w)` of its lift,
+/// square to the parent (the anchor's y axis) towards where the chain's
+/// first segment leaves it; less when the segment leaves within 30° of
+/// the parent's axis, in proportion to its part square to the parent (a
+/// direction normalised there would whip round the parent as the chain
+/// swings past its axis). The segment's direction is taken at `w`, which
+/// differs from the drawn one only under a split's or merge's slow-down;
+/// see `routing`.
 #[inline]
-fn lifted(lift: f32, first: &Sample, (anchor, turn): (Quat, Quat), w: f32) -> Vec3 {
+fn lifted(lift: f32, first: &Sample, w: f32) -> Vec3 {
     if lift == 0.0 || w <= 0.0 || w >= 1.0 {
         return Vec3::ZERO;
     }
-    let out = turn * arc(first.dir, first.dir_perp, first.theta, w);
-    let across = Vec3::new(out.x, 0.0, out.z).normalize_or_zero();
-    anchor * across * (lift * 4.0 * w * (1.0 - w))
+    let out = arc(first.dir, first.dir_perp, first.theta, w);
+    let across = Vec3::new(out.x, 0.0, out.z);
+    across / across.length().max(LIFT_FULL) * (lift * 4.0 * w * (1.0 - w))
 }
 
 /// A growing or wilting chain grown `reach` metres from its junction along
@@ -518,8 +529,8 @@ impl<'p> Morpher<'p> {
     }
 
     /// The branches of [`Morpher::morph`] alone: positions, radii and bark
-    /// blend, the leaves left as they were.
-    pub(crate) fn morph_branches(&mut self, t: f32, frame: &mut Frame) {
+    /// blend, the leaves left as they were; returns `t` paced.
+    pub(crate) fn morph_branches(&mut self, t: f32, frame: &mut Frame) -> Paced {
         let plan = self.plan;
         let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
         let nodes = plan.topology.node_count();
@@ -559,15 +570,15 @@ impl<'p> Morpher<'p> {
                 parallel,
             );
         }
+        t
     }
 
     /// Writes the in-between tree at time `t` (clamped to [0, 1]; NaN is
     /// taken as 0) into `frame`, resizing it to the topology first if
     /// needed.
     pub fn morph(&mut self, t: f32, frame: &mut Frame) {
-        self.morph_branches(t, frame);
+        let t = self.morph_branches(t, frame);
         let plan = self.plan;
-        let t = plan.schedule.paced(frame.t);
         frame.leaves.resize(
             plan.leaf_plans.len(),
             FrameLeaf {

@@ -166,7 +166,7 @@ fn morph_chain(
     u: &[f32],
     inv_span: &[f32],
     root: Vec3,
-    slow_down: bool,
+    (slow_down, reshape): (bool, f32),
     state: ChainState,
     done_pos: &[Vec3],
     done_frames: &[Quat],
@@ -182,10 +182,14 @@ fn morph_chain(
             blend_chain(chain, own, own_u, slow_down, w, at, out);
         }
         ChainState::Reach(reach) => {
-            let at = junction(chain, u, inv_span, root, 0.0, done_pos, done_frames);
+            let (at, anchor) = junction(chain, u, inv_span, root, 0.0, done_pos, done_frames);
             let side = usize::from(chain.operation == Operation::Grow);
             let jr = chain.junction_radius[side];
-            tip_first(own, side, (reach, jr), at, out);
+            // A wilting chain that a sibling's junction passes stands off
+            // the axis on the reshape's clock, while the sibling moves.
+            let leaves = arc(own[0].dir, own[0].dir_perp, own[0].theta, side as f32);
+            let at = at + anchor * lifted(chain.lift, leaves, reshape);
+            tip_first(own, side, (reach, jr), (at, anchor), out);
         }
     }
 }
@@ -208,7 +212,8 @@ fn blend_chain(
     // The lifted junction turns with the chain: routing models the detour
     // as a turn of all of it about the junction on the parent's axis.
     let anchor = anchor * detour_turn(chain.detour, w);
-    pos[0] = junction + anchor * lifted(chain.lift, &own[0], w);
+    let leaves = arc(own[0].dir, own[0].dir_perp, own[0].theta, w);
+    pos[0] = junction + anchor * lifted(chain.lift, leaves, w);
     for i in 0..k - 1 {
         let s = &own[i];
         let wi = point_weight(op, slow_down, own_u[i + 1], w);
@@ -247,21 +252,20 @@ pub(crate) fn detour_turn(detour: Vec3, w: f32) -> Quat {
 /// (the sine of 30°).
 const LIFT_FULL: f32 = 0.5;
 
-/// Where a blended chain's junction node stands off its parent's axis at
-/// `w`, in its anchor frame before any detour: `4w(1 − w)` of its lift,
-/// square to the parent (the anchor's y axis) towards where the chain's
-/// first segment leaves it; less when the segment leaves within 30° of
-/// the parent's axis, in proportion to its part square to the parent (a
-/// direction normalised there would whip round the parent as the chain
-/// swings past its axis). The segment's direction is taken at `w`, which
-/// differs from the drawn one only under a split's or merge's slow-down;
-/// see `routing`.
+/// Where a chain's junction node stands off its parent's axis at `w`, in
+/// its anchor frame before any detour: `4w(1 − w)` of its lift, square to
+/// the parent (the anchor's y axis) towards `out`, where the chain's first
+/// segment leaves it; less when that leaves within 30° of the parent's
+/// axis, in proportion to its part square to the parent (a direction
+/// normalised there would whip round the parent as the chain swings past
+/// its axis). A blended chain's `out` is taken at `w`, which differs from
+/// the drawn one only under a split's or merge's slow-down; see
+/// `routing`.
 #[inline]
-fn lifted(lift: f32, first: &Sample, w: f32) -> Vec3 {
+fn lifted(lift: f32, out: Vec3, w: f32) -> Vec3 {
     if lift == 0.0 || w <= 0.0 || w >= 1.0 {
         return Vec3::ZERO;
     }
-    let out = arc(first.dir, first.dir_perp, first.theta, w);
     let across = Vec3::new(out.x, 0.0, out.z);
     across / across.length().max(LIFT_FULL) * (lift * 4.0 * w * (1.0 - w))
 }
@@ -376,6 +380,7 @@ fn morph_chains(
         return;
     }
     let root = plan.root_at(t);
+    let reshape = plan.schedule.overall(t);
     for (i, c) in chains.iter().enumerate() {
         let off = c.first as usize - base;
         let k = c.len as usize;
@@ -385,7 +390,7 @@ fn morph_chains(
             &plan.sample_u,
             &plan.sample_inv_span,
             root,
-            plan.slow_down,
+            (plan.slow_down, reshape),
             plan.schedule.chain(index + i, t),
             done.0,
             done.1,

@@ -183,8 +183,8 @@ pub struct MorphOptions {
     /// When each operation happens (default staged).
     pub schedule: ScheduleOptions,
     /// Staged: a limb that still swings through a sibling after the
-    /// matching bows round it mid-window, and a junction that slides past
-    /// a sibling's stands off the parent's axis (`routing.rs`; default
+    /// matching bows round it mid-window, and junctions that slide past
+    /// each other stand off the parent's axis (`routing.rs`; default
     /// true).
     pub route_round: bool,
     /// Union nodes plus leaves above which a frame is computed with rayon

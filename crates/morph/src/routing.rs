@@ -31,7 +31,12 @@
 //! base stays inside the bark and shows no gap, and limbs on different
 //! sides of a trunk pass each other apart; thick limbs on thin parents
 //! (most third-party trees) get none. The lift is part of the chain: a
-//! detour turns it too.
+//! detour turns it too. A wilting limb whose junction a sibling's passes
+//! is lifted as well (on conifer → willow a third of the passing pairs
+//! were a merging limb and a wilting one), on the reshape phase's clock,
+//! which the passing sibling's window lies in, towards where it leaves
+//! the parent at t = 0; it retracts into its lifted junction. Growing
+//! limbs keep their junctions on the axis: they grow from it.
 //!
 //! # The choice
 //! The star of every union chain (its children; the root chains form one
@@ -71,6 +76,7 @@ use rayon::prelude::*;
 use treemorph_tree::Frame;
 use treemorph_tree::geom::{NONE, segment_segment_sq};
 
+use crate::correspondence::Operation;
 use crate::morpher::{Morpher, detour_turn};
 use crate::plan::MorphPlan;
 use crate::schedule::ChainState;
@@ -109,11 +115,11 @@ pub(crate) fn route(plan: &mut MorphPlan) {
 /// within this fraction of the parent's radius from the axis.
 const LIFT_DEPTH: f32 = 0.85;
 
-/// Gives every blended chain on a parent whose junction passes a
-/// sibling's along it its lift: as far off the parent's axis as keeps its
-/// base inside the parent's thinnest point between its junction's two
-/// ends. A chain that passes no sibling keeps its junction on the axis (a
-/// tree morphed into itself stands still).
+/// Gives every blended or wilting chain on a parent whose junction passes
+/// a sibling's along it (or is passed by one) its lift: as far off the
+/// parent's axis as keeps its base inside the parent's thinnest point
+/// between its junction's two ends. A chain that passes no sibling keeps
+/// its junction on the axis (a tree morphed into itself stands still).
 fn lift_junctions(plan: &mut MorphPlan, stars: &[Vec<u32>]) {
     let passing: Vec<u32> = stars
         .iter()
@@ -139,17 +145,18 @@ fn lift_junctions(plan: &mut MorphPlan, stars: &[Vec<u32>]) {
     }
 }
 
-/// The blended children of one parent whose growth location passes a
-/// sibling's: the two are in one order along the parent at t = 0 and in
-/// the other at t = 1. A growing or wilting sibling counts too, drawn or
+/// The blended and wilting children of one parent whose growth location
+/// passes a sibling's: the two are in one order along the parent at t = 0
+/// and in the other at t = 1. A growing or wilting sibling counts too, drawn or
 /// not when the junction passes it: a needless lift costs a little motion
 /// inside the bark, a missing one a crossing.
 fn passing_siblings<'a>(plan: &'a MorphPlan, kids: &'a [u32]) -> impl Iterator<Item = u32> + 'a {
     let p = |k: u32| plan.chain_plans[k as usize].p;
     kids.iter().copied().filter(move |&k| {
         let c = &plan.chain_plans[k as usize];
+        let tip_first = plan.schedule.tip_first(k as usize);
         c.parent != NONE
-            && !plan.schedule.tip_first(k as usize)
+            && (!tip_first || c.operation == Operation::Wilt)
             && kids.iter().any(|&o| {
                 let (a, b) = (p(k), p(o));
                 (a[0] - b[0]) * (a[1] - b[1]) < 0.0
@@ -554,7 +561,9 @@ mod tests {
         let lifted: Vec<usize> = (0..plan.chain_plans.len())
             .filter(|&i| plan.chain_plans[i].lift > 0.0)
             .collect();
-        assert!(!lifted.is_empty());
+        let wilting = |&i: &usize| plan.chain_plans[i].operation == Operation::Wilt;
+        assert!(lifted.iter().any(wilting), "no wilting limb lifted");
+        assert!(!lifted.iter().all(wilting), "no blended limb lifted");
         let mut morpher = Morpher::new(&plan);
         let mut frame = Frame::default();
         let mut farthest = 0.0f32;

@@ -332,6 +332,20 @@ fn block_errors(
     range: std::ops::Range<usize>,
     frames: usize,
 ) -> Vec<f32> {
+    portable_block_errors(d, targets, weights, (pass, each), range, frames)
+}
+
+/// [`block_errors`]' body, compiled for the baseline where it is called
+/// directly (the tests compare the two) and inlined into each clone.
+#[inline(always)]
+fn portable_block_errors(
+    d: &Columns,
+    targets: &Columns,
+    weights: &[f32],
+    (pass, each): (Pass, bool),
+    range: std::ops::Range<usize>,
+    frames: usize,
+) -> Vec<f32> {
     let (count, upto) = (pass.count, pass.upto);
     type Lanes = [f32; LANES];
     let len = range.len().next_multiple_of(LANES);
@@ -516,6 +530,36 @@ mod tests {
         assert_eq!(bits(&each), bits(&plain));
         let last = max_error(&d, &p.positions, &p.weights, count);
         assert_eq!(last.to_bits(), plain[count].to_bits());
+    }
+
+    /// The clone this machine dispatches to and the baseline build of the
+    /// same pass agree bit for bit, on every target count.
+    #[test]
+    fn the_dispatched_error_pass_equals_the_baseline_build() {
+        let (vertices, frames, count) = (1500, 13, 6);
+        let mut d = Columns::new(3 * vertices, frames);
+        for j in 0..frames {
+            for i in 0..3 * vertices {
+                let x = (i * 29 + j * 11) as f32;
+                d.data.push((x * 0.53).cos() * (0.5 + j as f32 * 0.07));
+            }
+        }
+        let p = principal(&d, &d.clone(), count);
+        assert_eq!(p.count, count);
+        let pass = Pass {
+            count,
+            upto: count,
+            every: 1,
+        };
+        for each in [true, false] {
+            let args = (&d, &p.positions, &p.weights[..], (pass, each));
+            let dispatched = block_errors(args.0, args.1, args.2, args.3, 0..vertices, frames);
+            let baseline =
+                portable_block_errors(args.0, args.1, args.2, args.3, 0..vertices, frames);
+            let bits = |e: &[f32]| e.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert!(dispatched.iter().any(|&e| e > 0.0));
+            assert_eq!(bits(&dispatched), bits(&baseline), "each: {each}");
+        }
     }
 
     #[test]

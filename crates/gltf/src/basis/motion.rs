@@ -250,7 +250,15 @@ fn worst_errors(
         .map(|&b| {
             let start = b * BLOCK_VERTICES;
             let range = start..(start + BLOCK_VERTICES).min(vertices);
-            block_errors(d, targets, weights, (pass, each), range, frames)
+            block_errors(&Block {
+                d,
+                targets,
+                weights,
+                pass,
+                each,
+                range,
+                frames,
+            })
         })
         .reduce(
             || vec![0f32; pass.upto + 1],
@@ -324,36 +332,42 @@ const LANES: usize = 16;
     "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl",
     "x86_64+avx2"
 ))]
-fn block_errors(
-    d: &Columns,
-    targets: &Columns,
-    weights: &[f32],
-    (pass, each): (Pass, bool),
+fn block_errors<'a>(block: &Block<'a>) -> Vec<f32> {
+    portable_block_errors(block)
+}
+
+/// One block of vertices of an error pass, as [`block_errors`] reads it.
+struct Block<'a> {
+    d: &'a Columns,
+    targets: &'a Columns,
+    weights: &'a [f32],
+    pass: Pass,
+    each: bool,
     range: std::ops::Range<usize>,
     frames: usize,
-) -> Vec<f32> {
-    portable_block_errors(d, targets, weights, (pass, each), range, frames)
 }
 
 /// [`block_errors`]' body, compiled for the baseline where it is called
 /// directly (the tests compare the two) and inlined into each clone.
 #[inline(always)]
-fn portable_block_errors(
-    d: &Columns,
-    targets: &Columns,
-    weights: &[f32],
-    (pass, each): (Pass, bool),
-    range: std::ops::Range<usize>,
-    frames: usize,
-) -> Vec<f32> {
+fn portable_block_errors(block: &Block<'_>) -> Vec<f32> {
+    let &Block {
+        d,
+        targets,
+        weights,
+        pass,
+        each,
+        ref range,
+        frames,
+    } = block;
     let (count, upto) = (pass.count, pass.upto);
     type Lanes = [f32; LANES];
     let len = range.len().next_multiple_of(LANES);
     // The block's displacements and targets, copied into runs of `len`
     // per axis (zero-padded): a few long sequential reads of the big
     // columns instead of scattered ones.
-    let local_d = gather(d, frames, &range, len);
-    let local_t = gather(targets, upto, &range, len);
+    let local_d = gather(d, frames, range, len);
+    let local_t = gather(targets, upto, range, len);
     let lanes_of = |local: &[f32], column: usize, axis: usize, at: usize| -> Lanes {
         let start = (column * 3 + axis) * len + at;
         local[start..start + LANES]
@@ -428,6 +442,31 @@ fn keep_largest(worst: &mut [f32; LANES], r: &[[f32; LANES]; 3]) {
 mod tests {
     use super::*;
 
+    /// `vertices` × `frames` displacements with more directions than
+    /// `count` targets span (row `i` of frame `j` is `f(i·a + j·b, j)`),
+    /// their `count` principal displacements, and the pass over all of
+    /// them.
+    fn wavy(
+        (vertices, frames, count): (usize, usize, usize),
+        (a, b): (usize, usize),
+        f: impl Fn(f32, usize) -> f32,
+    ) -> (Columns, Principal, Pass) {
+        let mut d = Columns::new(3 * vertices, frames);
+        for j in 0..frames {
+            for i in 0..3 * vertices {
+                d.data.push(f((i * a + j * b) as f32, j));
+            }
+        }
+        let p = principal(&d, &d.clone(), count);
+        assert_eq!(p.count, count);
+        let all = Pass {
+            count,
+            upto: count,
+            every: 1,
+        };
+        (d, p, all)
+    }
+
     /// Two vertices moving along two independent directions over five
     /// frames: two targets reproduce every frame, one does not.
     #[test]
@@ -464,22 +503,9 @@ mod tests {
     /// every count, on a motion that needs more targets than it keeps.
     #[test]
     fn the_error_with_every_target_is_the_last_of_every_count() {
-        let (vertices, frames) = (37, 9);
-        let mut d = Columns::new(3 * vertices, frames);
-        for j in 0..frames {
-            for i in 0..3 * vertices {
-                let x = (i * 31 + j * 17) as f32;
-                d.data
-                    .push((x * 0.37).sin() * (1.0 + (j as f32 * 0.5).cos()));
-            }
-        }
-        let p = principal(&d, &d.clone(), 4);
-        assert_eq!(p.count, 4);
-        let all = Pass {
-            count: p.count,
-            upto: p.count,
-            every: 1,
-        };
+        let (d, p, all) = wavy((37, 9, 4), (31, 17), |x, j| {
+            (x * 0.37).sin() * (1.0 + (j as f32 * 0.5).cos())
+        });
         let each = max_errors(&d, &p.positions, &p.weights, all);
         let last = max_error(&d, &p.positions, &p.weights, p.count);
         assert!(each[4] > 0.0);
@@ -493,15 +519,9 @@ mod tests {
     #[test]
     fn the_error_pass_equals_a_plain_loop_bit_for_bit() {
         let (vertices, frames, count) = (70, 11, 5);
-        let mut d = Columns::new(3 * vertices, frames);
-        for j in 0..frames {
-            for i in 0..3 * vertices {
-                let x = (i * 13 + j * 7) as f32;
-                d.data.push((x * 0.91).sin() * (1.0 + j as f32 * 0.1));
-            }
-        }
-        let p = principal(&d, &d.clone(), count);
-        assert_eq!(p.count, count);
+        let (d, p, all) = wavy((vertices, frames, count), (13, 7), |x, j| {
+            (x * 0.91).sin() * (1.0 + j as f32 * 0.1)
+        });
         let mut plain = vec![0f32; count + 1];
         for j in 0..frames {
             for v in 0..vertices {
@@ -520,11 +540,6 @@ mod tests {
             }
         }
         let plain: Vec<f32> = plain.into_iter().map(f32::sqrt).collect();
-        let all = Pass {
-            count,
-            upto: count,
-            every: 1,
-        };
         let bits = |e: &[f32]| e.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let each = max_errors(&d, &p.positions, &p.weights, all);
         assert_eq!(bits(&each), bits(&plain));
@@ -537,25 +552,20 @@ mod tests {
     #[test]
     fn the_dispatched_error_pass_equals_the_baseline_build() {
         let (vertices, frames, count) = (1500, 13, 6);
-        let mut d = Columns::new(3 * vertices, frames);
-        for j in 0..frames {
-            for i in 0..3 * vertices {
-                let x = (i * 29 + j * 11) as f32;
-                d.data.push((x * 0.53).cos() * (0.5 + j as f32 * 0.07));
-            }
-        }
-        let p = principal(&d, &d.clone(), count);
-        assert_eq!(p.count, count);
-        let pass = Pass {
-            count,
-            upto: count,
-            every: 1,
-        };
+        let (d, p, pass) = wavy((vertices, frames, count), (29, 11), |x, j| {
+            (x * 0.53).cos() * (0.5 + j as f32 * 0.07)
+        });
         for each in [true, false] {
-            let args = (&d, &p.positions, &p.weights[..], (pass, each));
-            let dispatched = block_errors(args.0, args.1, args.2, args.3, 0..vertices, frames);
-            let baseline =
-                portable_block_errors(args.0, args.1, args.2, args.3, 0..vertices, frames);
+            let block = Block {
+                d: &d,
+                targets: &p.positions,
+                weights: &p.weights,
+                pass,
+                each,
+                range: 0..vertices,
+                frames,
+            };
+            let (dispatched, baseline) = (block_errors(&block), portable_block_errors(&block));
             let bits = |e: &[f32]| e.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert!(dispatched.iter().any(|&e| e > 0.0));
             assert_eq!(bits(&dispatched), bits(&baseline), "each: {each}");

@@ -195,6 +195,12 @@ class Ledger:
         self.renders_ok = 0
         self.kept = set()  # ids of the jobs the renderer can count on: never deleted
 
+    def add_job(self, key, source, target):
+        """Records the morph job to post under idempotency key `key`."""
+        with self.lock:
+            self.jobs[key] = {"body": {"kind": "morph", "source": source, "target": target, "frames": FRAMES},
+                              "id": None, "tries": 0}
+
     def deleting(self):
         with self.lock:
             return set(self.deletes)
@@ -287,10 +293,7 @@ def driver(life, base, ledger, stop, rng, kill_at):
             trees = ledger.tree_ids()
             a, b = rng.sample(trees, 2)
             key = f"crash-{life}-{n}"
-            with ledger.lock:
-                ledger.jobs[key] = {
-                    "body": {"kind": "morph", "source": a, "target": b, "frames": FRAMES},
-                    "id": None, "tries": 0}
+            ledger.add_job(key, a, b)
             post_job(base, ledger, key)
             stop.wait(rng.uniform(0, 0.2))
         if rng.random() < 0.5:
@@ -313,10 +316,7 @@ def driver(life, base, ledger, stop, rng, kill_at):
         racer = f"crash-{life}-race"
         trees = ledger.tree_ids()
         a, b = rng.sample(trees, 2)
-        with ledger.lock:
-            ledger.jobs[racer] = {
-                "body": {"kind": "morph", "source": a, "target": b, "frames": FRAMES},
-                "id": None, "tries": 0}
+        ledger.add_job(racer, a, b)
         race_at = kill_at - rng.uniform(0, 0.008)
         while not stop.is_set() and time.monotonic() < race_at - 0.25:
             r = request(base, "GET", "/v1/jobs?limit=100")
@@ -377,9 +377,7 @@ def start_render_jobs(base, ledger):
     a, b = ledger.tree_ids()[:2]
     for i in range(RENDER_JOBS):
         key = f"crash-0-render-{i}"
-        with ledger.lock:
-            ledger.jobs[key] = {"body": {"kind": "morph", "source": a, "target": b, "frames": FRAMES},
-                                "id": None, "tries": 0}
+        ledger.add_job(key, a, b)
         post_job(base, ledger, key)
         jid = ledger.jobs[key]["id"]
         if jid is None:
@@ -390,7 +388,8 @@ def start_render_jobs(base, ledger):
         statuses = [request(base, "GET", f"/v1/jobs/{jid}").json()["status"] for jid in ledger.kept]
         if all(s == "succeeded" for s in statuses):
             return
-        check(not any(s in TERMINAL and s != "succeeded" for s in statuses), f"a render job ended {statuses}")
+        if any(s in TERMINAL and s != "succeeded" for s in statuses):
+            raise SystemExit(f"a render job ended without succeeding: {statuses}")
         time.sleep(0.1)
     raise SystemExit(f"the render jobs did not succeed within {FINISH_DEADLINE_S} s")
 
@@ -402,9 +401,9 @@ def deleter(base, ledger, stop, rng, kill_at):
     try:
         stop.wait(max(0.0, kill_at - 0.3 - time.monotonic()))
         r = request(base, "GET", "/v1/jobs?limit=100")
-        gone = ledger.deleting()
+        spared = ledger.deleting() | ledger.kept
         ended = [j["id"] for j in r.json()["items"]
-                 if j["status"] in TERMINAL and j["id"] not in gone | ledger.kept] if r.status == 200 else []
+                 if j["status"] in TERMINAL and j["id"] not in spared] if r.status == 200 else []
         if not ended or stop.is_set():
             return
         jid = rng.choice(ended)

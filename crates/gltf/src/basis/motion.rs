@@ -467,6 +467,11 @@ mod tests {
         (d, p, all)
     }
 
+    /// The bit patterns of `e`, to compare errors exactly.
+    fn bits(e: &[f32]) -> Vec<u32> {
+        e.iter().map(|x| x.to_bits()).collect()
+    }
+
     /// Two vertices moving along two independent directions over five
     /// frames: two targets reproduce every frame, one does not.
     #[test]
@@ -540,7 +545,6 @@ mod tests {
             }
         }
         let plain: Vec<f32> = plain.into_iter().map(f32::sqrt).collect();
-        let bits = |e: &[f32]| e.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let each = max_errors(&d, &p.positions, &p.weights, all);
         assert_eq!(bits(&each), bits(&plain));
         let last = max_error(&d, &p.positions, &p.weights, count);
@@ -566,7 +570,6 @@ mod tests {
                 frames,
             };
             let (dispatched, baseline) = (block_errors(&block), portable_block_errors(&block));
-            let bits = |e: &[f32]| e.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert!(dispatched.iter().any(|&e| e > 0.0));
             assert_eq!(bits(&dispatched), bits(&baseline), "each: {each}");
         }

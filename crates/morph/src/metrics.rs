@@ -65,6 +65,22 @@ fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
     (best.0.sqrt(), best.1)
 }
 
+/// Whether `p` lies within `reach` of the polyline through `positions`:
+/// `to_polyline(p, ..).0 <= reach`, the same answer (the square root is
+/// monotone), from the first segment within reach rather than the nearest.
+/// Most leaves sit on their host, so a frame's leaves read about half of
+/// their hosts' segments instead of all.
+fn within_polyline(p: Vec3, positions: &[Vec3], reach: f32) -> bool {
+    if positions.len() == 1 {
+        return p.distance(positions[0]) <= reach;
+    }
+    positions.windows(2).any(|w| {
+        p.distance_squared(closest_on_segment(p, w[0], w[1]).0)
+            .sqrt()
+            <= reach
+    })
+}
+
 /// Visible leaves of `frame` that coincide with another of a different
 /// material pair: keyed by anchor, orientation and size rounded to a
 /// millionth of the height (copies of one leaf are computed alike, so
@@ -307,7 +323,7 @@ impl<'p> FrameMeter<'p> {
             let near = hosts.iter().any(|&h| {
                 let r = plan.chains()[h as usize].nodes.clone();
                 let r = r.start as usize..r.end as usize;
-                to_polyline(leaf.anchor, &pos[r.clone()], &rad[r]).0 <= allowed
+                within_polyline(leaf.anchor, &pos[r], allowed)
             });
             floating_leaves += u32::from(!near);
         }

@@ -168,6 +168,51 @@ impl TriangleGrid {
     }
 }
 
+impl TriangleGrid {
+    /// Calls `visit(i, j)`, `i < j`, once for every pair of `boxes` that
+    /// meet (closed bounds), where `boxes` are those the table was last
+    /// built over. Rather than one range query per box, each bucket's
+    /// entries are paired among themselves, and a pair is taken only in
+    /// the cell holding the low corner of the two boxes' overlap (both
+    /// boxes cover that cell, and it is one cell, so one bucket): every
+    /// meeting pair once, without the per-query stamps. Big boxes (on no
+    /// bucket) are paired with every box directly.
+    pub fn for_each_overlap(&self, boxes: &[(Vec3, Vec3)], mut visit: impl FnMut(u32, u32)) {
+        let meet =
+            |a: (Vec3, Vec3), b: (Vec3, Vec3)| !(b.0.cmpgt(a.1).any() || b.1.cmplt(a.0).any());
+        let is_big = |k: usize| self.ranges[k].1.x < self.ranges[k].0.x;
+        for &b in &self.big {
+            for (k, &other) in boxes.iter().enumerate() {
+                let k = k as u32;
+                if k != b && !(is_big(k as usize) && k < b) && meet(boxes[b as usize], other) {
+                    visit(b.min(k), b.max(k));
+                }
+            }
+        }
+        for bucket in 0..self.starts.len().saturating_sub(1) {
+            let entries =
+                &self.entries[self.starts[bucket] as usize..self.starts[bucket + 1] as usize];
+            for (x, &i) in entries.iter().enumerate() {
+                // A box in two cells of one bucket is listed twice, next to
+                // itself (the build fills each bucket in box order).
+                if x > 0 && entries[x - 1] == i {
+                    continue;
+                }
+                let a = boxes[i as usize];
+                for (y, &j) in entries.iter().enumerate().skip(x + 1) {
+                    if j == i || entries[y - 1] == j || !meet(a, boxes[j as usize]) {
+                        continue;
+                    }
+                    let corner = self.cell_of(a.0.max(boxes[j as usize].0));
+                    if (hash(corner) & self.mask) as usize == bucket {
+                        visit(i.min(j), i.max(j));
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Cells per axis of an [`Occupancy`]: 64³ bits, 32 KiB, which stays in
 /// cache while a sweep reads every triangle's bounds against it.
 const OCCUPANCY_CELLS: i32 = 64;
@@ -230,5 +275,57 @@ impl Occupancy {
             }
         }
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Boxes from corners and sizes in a 10 m cube; some are flat or
+    /// points, and a few span most of the cube.
+    fn boxes() -> impl Strategy<Value = Vec<(Vec3, Vec3)>> {
+        let coord = 0.0f32..10.0;
+        let size = prop_oneof![Just(0.0f32), 0.0f32..1.0, 0.0f32..10.0];
+        let one = (
+            (coord.clone(), coord.clone(), coord),
+            (size.clone(), size.clone(), size),
+        )
+            .prop_map(|((x, y, z), (a, b, c))| {
+                let lo = Vec3::new(x, y, z);
+                (lo, lo + Vec3::new(a, b, c))
+            });
+        prop::collection::vec(one, 0..120)
+    }
+
+    fn brute_force(boxes: &[(Vec3, Vec3)]) -> Vec<(u32, u32)> {
+        let mut pairs = Vec::new();
+        for (i, a) in boxes.iter().enumerate() {
+            for (j, b) in boxes.iter().enumerate().skip(i + 1) {
+                if !(b.0.cmpgt(a.1).any() || b.1.cmplt(a.0).any()) {
+                    pairs.push((i as u32, j as u32));
+                }
+            }
+        }
+        pairs
+    }
+
+    proptest! {
+        /// Every meeting pair once, whatever the cell: fine cells put big
+        /// boxes on the list every query visits, and a small table makes
+        /// cells share buckets.
+        #[test]
+        fn overlaps_are_every_meeting_pair_once(boxes in boxes(), cell in prop_oneof![Just(0.05f32), 0.2f32..3.0]) {
+            let mut grid = TriangleGrid::default();
+            grid.build(&boxes, cell);
+            let mut found = Vec::new();
+            grid.for_each_overlap(&boxes, |i, j| found.push((i, j)));
+            let visited = found.len();
+            found.sort_unstable();
+            found.dedup();
+            prop_assert_eq!(visited, found.len(), "a pair was visited twice");
+            prop_assert_eq!(found, brute_force(&boxes));
+        }
     }
 }

@@ -65,20 +65,45 @@ fn to_polyline(p: Vec3, positions: &[Vec3], radii: &[f32]) -> (f32, f32) {
     (best.0.sqrt(), best.1)
 }
 
-/// Whether `p` lies within `reach` of the polyline through `positions`:
-/// `to_polyline(p, ..).0 <= reach`, the same answer (the square root is
-/// monotone), from the first segment within reach rather than the nearest.
-/// Most leaves sit on their host, so a frame's leaves read about half of
-/// their hosts' segments instead of all.
-fn within_polyline(p: Vec3, positions: &[Vec3], reach: f32) -> bool {
-    if positions.len() == 1 {
-        return p.distance(positions[0]) <= reach;
+/// Whether `p` lies within `reach` of segment `j` of the polyline through
+/// `positions` (its one node when it has one): `to_polyline`'s distance on
+/// that segment, so any segment within reach answers as `to_polyline(p,
+/// ..).0 <= reach` does (the square root is monotone).
+fn within_segment(p: Vec3, positions: &[Vec3], j: usize, reach: f32) -> bool {
+    match positions.get(j..j + 2) {
+        Some(&[a, b]) => p.distance_squared(closest_on_segment(p, a, b).0).sqrt() <= reach,
+        _ => j == 0 && positions.len() == 1 && p.distance(positions[0]) <= reach,
     }
-    positions.windows(2).any(|w| {
-        p.distance_squared(closest_on_segment(p, w[0], w[1]).0)
-            .sqrt()
-            <= reach
-    })
+}
+
+/// Whether a leaf at `p` lies within `reach` of one of its hosts' axes
+/// (`hosts`: the chains' node ranges). `hint` is the host (by rank) and
+/// segment that held it last frame, tried first, then every segment of
+/// every host until one is within reach, which becomes the hint: a leaf
+/// mostly stays by its segment from one frame to the next, so most leaves
+/// cost one segment instead of a scan of their hosts.
+fn leaf_within(
+    p: Vec3,
+    positions: &[Vec3],
+    hosts: &[std::ops::Range<usize>],
+    reach: f32,
+    hint: &mut (u32, u32),
+) -> bool {
+    let (h, j) = (hint.0 as usize, hint.1 as usize);
+    if hosts
+        .get(h)
+        .is_some_and(|r| within_segment(p, &positions[r.clone()], j, reach))
+    {
+        return true;
+    }
+    for (h, r) in hosts.iter().enumerate() {
+        let axis = &positions[r.clone()];
+        if let Some(j) = (0..axis.len().max(2) - 1).find(|&j| within_segment(p, axis, j, reach)) {
+            *hint = (h as u32, j as u32);
+            return true;
+        }
+    }
+    false
 }
 
 /// Visible leaves of `frame` that coincide with another of a different
@@ -149,6 +174,9 @@ pub struct FrameMeter<'p> {
     trunks: Vec<Trunk>,
     /// Per trunk: its support weight and base radius (scratch).
     supports: Vec<(f64, f32)>,
+    /// Per union leaf: the host (by rank) and segment that held it within
+    /// reach last frame ([`leaf_within`]).
+    leaf_hints: Vec<(u32, u32)>,
 }
 
 /// Root union chains that coincide at one end of the morph.
@@ -276,6 +304,7 @@ impl<'p> FrameMeter<'p> {
             leaf_share,
             trunks,
             supports: Vec::new(),
+            leaf_hints: vec![(0, 0); plan.leaf_hosts.len()],
         }
     }
 
@@ -320,11 +349,11 @@ impl<'p> FrameMeter<'p> {
         {
             let w = plan.schedule.leaf(i, t);
             let allowed = len[0] + (len[1] - len[0]) * w + eps;
-            let near = hosts.iter().any(|&h| {
-                let r = plan.chains()[h as usize].nodes.clone();
-                let r = r.start as usize..r.end as usize;
-                within_polyline(leaf.anchor, &pos[r], allowed)
+            let ranges = hosts.map(|h| {
+                let r = &plan.chains()[h as usize].nodes;
+                r.start as usize..r.end as usize
             });
+            let near = leaf_within(leaf.anchor, pos, &ranges, allowed, &mut self.leaf_hints[i]);
             floating_leaves += u32::from(!near);
         }
 
@@ -533,4 +562,35 @@ pub fn frame_metrics(
     options: &MetricsOptions,
 ) -> Result<FrameMetrics, FrameMismatch> {
     FrameMeter::new(plan, options).measure(frame)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// With any hint, a leaf is within reach exactly when the nearest
+        /// point of one of its hosts' axes is, as `to_polyline` measures.
+        #[test]
+        fn a_leaf_is_within_reach_as_its_nearest_axis_point_says(
+            nodes in prop::collection::vec((-2.0f32..2.0, 0.0f32..4.0, -2.0f32..2.0), 0..9),
+            split in 0usize..9,
+            leaves in prop::collection::vec(((-3.0f32..3.0, -1.0f32..5.0, -3.0f32..3.0), 0.0f32..1.5), 1..20),
+            hint in (0u32..3, 0u32..10),
+        ) {
+            let positions: Vec<Vec3> = nodes.iter().map(|&(x, y, z)| Vec3::new(x, y, z)).collect();
+            let split = split.min(positions.len());
+            let hosts = [0..split, split..positions.len()];
+            let radii = vec![0.0; positions.len()];
+            let mut hint = hint;
+            for ((x, y, z), reach) in leaves {
+                let p = Vec3::new(x, y, z);
+                let expected = hosts.iter().any(|r| {
+                    !r.is_empty() && to_polyline(p, &positions[r.clone()], &radii[r.clone()]).0 <= reach
+                });
+                prop_assert_eq!(leaf_within(p, &positions, &hosts, reach, &mut hint), expected);
+            }
+        }
+    }
 }

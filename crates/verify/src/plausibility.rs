@@ -1,7 +1,7 @@
 //! The plausibility check: [`Plausibility`], its input [`MeshView`], its
 //! [`PlausibilityOptions`] and its [`Report`].
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use thiserror::Error;
 use treemorph_gltf::frames::FrameMeshes;
@@ -678,7 +678,11 @@ impl Plausibility {
         let p = meshes.branch_positions;
         for (i, t) in meshes.branch_indices.chunks_exact(3).enumerate() {
             let tri = [p[t[0] as usize], p[t[1] as usize], p[t[2] as usize]];
-            if (tri[1] - tri[0]).cross(tri[2] - tri[0]).length_squared() <= 0.0 {
+            // In 4-lane registers: the same products, sums and comparisons
+            // (so the same visibility and bounds) in fewer instructions
+            // than glam's scalar `Vec3` on the baseline target.
+            let [a, b, c] = tri.map(Vec3A::from);
+            if (b - a).cross(c - a).length_squared() <= 0.0 {
                 self.visible_of.push(u32::MAX);
                 continue;
             }
@@ -689,10 +693,8 @@ impl Plausibility {
             }
             self.tris.push(tri);
             self.tri_piece.push(self.piece_of[t[0] as usize]);
-            self.boxes.push((
-                tri[0].min(tri[1]).min(tri[2]),
-                tri[0].max(tri[1]).max(tri[2]),
-            ));
+            self.boxes
+                .push((a.min(b).min(c).into(), a.max(b).max(c).into()));
         }
         self.piece_starts.clear();
         self.piece_starts.resize(self.pieces + 1, 0);

@@ -701,15 +701,52 @@ impl Plausibility {
         self.piece_boxes.clear();
         self.piece_boxes
             .resize(self.pieces, (Vec3::INFINITY, Vec3::NEG_INFINITY));
+        let mut ascending = true;
+        // The bounds of the current run of one piece's triangles, kept in
+        // registers and merged into the piece's when the run ends: merging
+        // each triangle in place went through memory and was most of this
+        // pass.
+        let mut run: Option<(u32, Vec3A, Vec3A)> = None;
+        let piece_boxes = &mut self.piece_boxes;
+        let mut merge = |(piece, lo, hi): (u32, Vec3A, Vec3A)| {
+            let b = &mut piece_boxes[piece as usize];
+            *b = (lo.min(b.0.into()).into(), hi.max(b.1.into()).into());
+        };
         for (&piece, &(lo, hi)) in self.tri_piece.iter().zip(&self.boxes) {
             self.piece_starts[piece as usize + 1] += 1;
-            let b = &mut self.piece_boxes[piece as usize];
-            *b = (b.0.min(lo), b.1.max(hi));
+            match &mut run {
+                Some((current, l, h)) if *current == piece => {
+                    *l = l.min(lo.into());
+                    *h = h.max(hi.into());
+                }
+                _ => {
+                    if let Some(ended) = run {
+                        ascending &= ended.0 < piece;
+                        merge(ended);
+                    }
+                    run = Some((piece, lo.into(), hi.into()));
+                }
+            }
+        }
+        if let Some(ended) = run {
+            merge(ended);
         }
         for i in 0..self.pieces {
             self.piece_starts[i + 1] += self.piece_starts[i];
         }
+        self.list_by_piece(ascending);
+    }
+
+    /// Lists the visible triangles by piece (`piece_tris`, with
+    /// `piece_starts` counted). When the pieces come in ascending order
+    /// in the index buffer, as every tube mesher writes them, the list is
+    /// the triangles in order.
+    fn list_by_piece(&mut self, ascending: bool) {
         self.piece_tris.clear();
+        if ascending {
+            self.piece_tris.extend(0..self.tris.len() as u32);
+            return;
+        }
         self.piece_tris.resize(self.tris.len(), 0);
         // Reuse `parent` as fill cursors (it is scratch).
         self.parent.clear();

@@ -276,6 +276,21 @@ fn a_proof_kept_from_the_last_frame_is_retested() {
 
 #[test]
 fn the_fast_check_agrees_with_the_reference_over_a_sequence() {
+    fast_and_reference_over_a_sequence(false);
+}
+
+#[test]
+fn pieces_out_of_order_in_the_index_buffer_check_alike() {
+    // Files from other tools need not list a tube's triangles together or
+    // in order: the same frames with the triangles reversed.
+    fast_and_reference_over_a_sequence(true);
+}
+
+/// Scatters a sample tree a little more each frame, so leaves come loose
+/// one after another, and checks every frame with one fast context (as
+/// over a job's sequence) and with the reference: equal reports. With
+/// `reversed`, the branch triangles are listed last first.
+fn fast_and_reference_over_a_sequence(reversed: bool) {
     let tree = treemorph_gltf::sample::sample_tree(400);
     let topology = FrameTopology::of_tree(&tree);
     let mut frame = Frame::of_tree(&tree);
@@ -285,8 +300,6 @@ fn the_fast_check_agrees_with_the_reference_over_a_sequence() {
     let opts = PlausibilityOptions::default();
     let base = frame.clone();
     for step in 0..6 {
-        // Scatter the nodes and leaves a little more each frame, so leaves
-        // come loose one after another.
         let k = step as f32 * 0.15;
         for (i, (p, q)) in frame.positions.iter_mut().zip(&base.positions).enumerate() {
             let h = (i as f32 * 12.9898).sin() * 43_758.547;
@@ -297,7 +310,17 @@ fn the_fast_check_agrees_with_the_reference_over_a_sequence() {
             l.anchor = m.anchor + Vec3::X * (k * (i % 3) as f32);
         }
         writer.write(&frame).unwrap();
-        let view = MeshView::of_frame_meshes(writer.meshes());
+        let mut view = MeshView::of_frame_meshes(writer.meshes());
+        let reversed_indices: Vec<u32> = view
+            .branch_indices
+            .chunks_exact(3)
+            .rev()
+            .flatten()
+            .copied()
+            .collect();
+        if reversed {
+            view.branch_indices = &reversed_indices;
+        }
         let a = fast.check(&view, &opts).unwrap();
         let b = reference.check_reference(&view, &opts).unwrap();
         assert_eq!(a, b, "step {step}");

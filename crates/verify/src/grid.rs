@@ -130,36 +130,48 @@ impl TriangleGrid {
             self.stamp = 1;
         }
         let stamp = self.stamp;
-        for &t in &self.big {
-            if visit(t) {
-                return true;
+        let mut stamps = std::mem::take(&mut self.stamps);
+        let found = self.scan(lo, hi, |t| {
+            let seen = &mut stamps[t as usize];
+            if *seen == stamp {
+                return false;
             }
+            *seen = stamp;
+            visit(t)
+        });
+        self.stamps = stamps;
+        found
+    }
+
+    /// [`TriangleGrid::any_near`] from a shared table (several threads may
+    /// ask at once): a triangle in several cells of the box is visited
+    /// once per cell, so this suits searches that stop at their first hit
+    /// and whose misses cost little.
+    pub fn any_near_shared(&self, lo: Vec3, hi: Vec3, visit: impl FnMut(u32) -> bool) -> bool {
+        self.scan(lo, hi, visit)
+    }
+
+    /// Calls `visit` on the big triangles and on every entry of the cells
+    /// of `[lo, hi]`, repeats included, until it returns `true`.
+    fn scan(&self, lo: Vec3, hi: Vec3, mut visit: impl FnMut(u32) -> bool) -> bool {
+        if self.big.iter().any(|&t| visit(t)) {
+            return true;
         }
         let (a, b) = self.cells(lo, hi);
         if Self::span((a, b)) > (self.starts.len() as i64) {
             // A query box larger than the table: every bucket once.
-            for &t in &self.entries {
-                if self.stamps[t as usize] != stamp {
-                    self.stamps[t as usize] = stamp;
-                    if visit(t) {
-                        return true;
-                    }
-                }
-            }
-            return false;
+            return self.entries.iter().any(|&t| visit(t));
         }
         for z in a.z..=b.z {
             for y in a.y..=b.y {
                 for x in a.x..=b.x {
                     let bucket = (hash(IVec3::new(x, y, z)) & self.mask) as usize;
                     let (s, e) = (self.starts[bucket], self.starts[bucket + 1]);
-                    for &t in &self.entries[s as usize..e as usize] {
-                        if self.stamps[t as usize] != stamp {
-                            self.stamps[t as usize] = stamp;
-                            if visit(t) {
-                                return true;
-                            }
-                        }
+                    if self.entries[s as usize..e as usize]
+                        .iter()
+                        .any(|&t| visit(t))
+                    {
+                        return true;
                     }
                 }
             }

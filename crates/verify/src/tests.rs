@@ -329,3 +329,32 @@ fn fast_and_reference_over_a_sequence(reversed: bool) {
         }
     }
 }
+
+#[test]
+fn a_first_frame_searched_in_halves_names_its_floating_leaves() {
+    // Thousands of open leaves (a fresh context has every leaf open) are
+    // searched on two threads: leaves moved away in either half must come
+    // back as themselves, in order.
+    let tree = treemorph_generate::generate(
+        &treemorph_generate::GenerateOptions::new(treemorph_generate::Preset::Maple, 1)
+            .with_size(2_000),
+    )
+    .unwrap();
+    let topology = FrameTopology::of_tree(&tree);
+    let mut frame = Frame::of_tree(&tree);
+    let n = frame.leaves.len();
+    assert!(n >= 2_048, "{n} leaves: too few to split");
+    let moved = [3, n / 2 - 1, n / 2 + 5, n - 2];
+    for &i in &moved {
+        frame.leaves[i].anchor += Vec3::new(50.0, 0.0, 0.0);
+    }
+    let mut writer =
+        FrameGlbWriter::new(&topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
+    writer.write(&frame).unwrap();
+    let view = MeshView::of_frame_meshes(writer.meshes());
+    let report = Plausibility::new()
+        .check(&view, &PlausibilityOptions::default())
+        .unwrap();
+    let floating: Vec<u32> = report.floating.iter().map(|f| f.leaf).collect();
+    assert_eq!(floating, moved.map(|i| i as u32));
+}

@@ -197,9 +197,7 @@ impl BlobSink {
     }
 
     fn put(&mut self, what: &str, key: String, bytes: Vec<u8>) -> Result<(), SinkError> {
-        if self.flags.lost.load(Ordering::SeqCst) {
-            return Err(self.lost(what));
-        }
+        self.holds_lease(what)?;
         self.blobs
             .put_deferred_here(&self.rt, &key, bytes)
             .map_err(|e| self.storage(what, e))?;
@@ -218,9 +216,7 @@ impl BlobSink {
         if bytes.len() < PUT_BEHIND_BYTES {
             return self.put(what, key, bytes);
         }
-        if self.flags.lost.load(Ordering::SeqCst) {
-            return Err(self.lost(what));
-        }
+        self.holds_lease(what)?;
         let (blobs, rt, at) = (self.blobs.clone(), self.rt.clone(), key.clone());
         let writer = std::thread::Builder::new()
             .name(format!("put-{}", self.job))
@@ -260,6 +256,15 @@ impl BlobSink {
             }
             Err(e) => Err(self.storage(what, e)),
         }
+    }
+
+    /// Fails with [`BlobSink::lost`] once the attempt has lost its lease:
+    /// nothing more of it is written.
+    fn holds_lease(&self, what: &str) -> Result<(), SinkError> {
+        if self.flags.lost.load(Ordering::SeqCst) {
+            return Err(self.lost(what));
+        }
+        Ok(())
     }
 
     fn lost(&self, what: &str) -> SinkError {

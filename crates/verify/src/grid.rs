@@ -178,9 +178,7 @@ impl TriangleGrid {
         }
         false
     }
-}
 
-impl TriangleGrid {
     /// Calls `visit(i, j)`, `i < j`, once for every pair of `boxes` that
     /// meet (closed bounds), where `boxes` are those the table was last
     /// built over. Rather than one range query per box, each bucket's

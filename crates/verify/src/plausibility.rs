@@ -331,6 +331,23 @@ impl<'a> Near<'a> {
     }
 }
 
+/// Leaf `leaf`'s vertices, by the grouping `starts` and `vertices` (see
+/// [`Plausibility`]'s `leaf_starts`).
+fn leaf_vertex_ids<'a>(starts: &[u32], vertices: &'a [u32], leaf: usize) -> &'a [u32] {
+    &vertices[starts[leaf] as usize..starts[leaf + 1] as usize]
+}
+
+/// The positions of vertices `ids` into `points`, and their bounds.
+fn gather_leaf(positions: &[Vec3], ids: &[u32], points: &mut Vec<Vec3>) -> (Vec3, Vec3) {
+    points.clear();
+    points.extend(ids.iter().map(|&v| positions[v as usize]));
+    points
+        .iter()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        })
+}
+
 /// Open leaves at least this many are searched on two threads
 /// ([`Plausibility::search_leaves`]); fewer cost less than the split.
 const PARALLEL_LEAVES: usize = 2_048;
@@ -360,15 +377,8 @@ impl LeafSearch<'_> {
         // their twigs, so most are found on their predecessor's twig.
         let mut last = None;
         for o in open {
-            let vs = &self.leaf_vertices[self.leaf_starts[o.leaf as usize] as usize
-                ..self.leaf_starts[o.leaf as usize + 1] as usize];
-            points.clear();
-            points.extend(vs.iter().map(|&v| self.positions[v as usize]));
-            let (lo, hi) = points
-                .iter()
-                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &p| {
-                    (lo.min(p), hi.max(p))
-                });
+            let vs = leaf_vertex_ids(self.leaf_starts, self.leaf_vertices, o.leaf as usize);
+            let (lo, hi) = gather_leaf(self.positions, vs, &mut points);
             let near = Near::of(self.tris, self.boxes, &points);
             let allowed2 = o.allowed * o.allowed;
             let on_last = last.filter(|_| !self.reference).and_then(|piece: u32| {
@@ -834,17 +844,8 @@ impl Plausibility {
     /// Leaf `leaf`'s vertices into `scratch`; its size (0 for a leaf not
     /// drawn) and bounds.
     fn leaf_points(&mut self, meshes: &MeshView<'_>, leaf: usize) -> (Vec3, Vec3) {
-        let vs = &self.leaf_vertices
-            [self.leaf_starts[leaf] as usize..self.leaf_starts[leaf + 1] as usize];
-        self.scratch.clear();
-        self.scratch
-            .extend(vs.iter().map(|&v| meshes.leaf_positions[v as usize]));
-        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        for &p in &self.scratch {
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-        (lo, hi)
+        let vs = leaf_vertex_ids(&self.leaf_starts, &self.leaf_vertices, leaf);
+        gather_leaf(meshes.leaf_positions, vs, &mut self.scratch)
     }
 
     /// The size of the leaf in `scratch`: the largest distance between two
@@ -890,8 +891,7 @@ impl Plausibility {
         let Some(&s) = self.visible_of.get(t as usize) else {
             return false;
         };
-        let vs = &self.leaf_vertices
-            [self.leaf_starts[leaf] as usize..self.leaf_starts[leaf + 1] as usize];
+        let vs = leaf_vertex_ids(&self.leaf_starts, &self.leaf_vertices, leaf);
         let (Some(&proof), Some(&first)) = (vs.get(k as usize), vs.first()) else {
             return false;
         };

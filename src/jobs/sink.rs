@@ -31,7 +31,7 @@ use tokio::runtime::Handle;
 use super::Hub;
 use super::queue::{self, file_key, frame_delta_key, frame_glb_key, header_key, plan_key};
 use crate::pipeline::{Attempt, FrameOutput, JobSink, SinkError};
-use crate::store::{BlobError, Blobs, Db};
+use crate::store::{BlobError, BlobWriter, Blobs, Db};
 use crate::telemetry::Metrics;
 
 /// Outputs of a job's end at least this large are written beside the job
@@ -91,6 +91,9 @@ pub struct BlobSink {
     /// Puts of the job's end still writing (see [`BlobSink::put_behind`]):
     /// what each is and the thread writing it.
     pending: Vec<(String, std::thread::JoinHandle<Result<(), BlobError>>)>,
+    /// `stream.tmd` as it is written, on the local store
+    /// ([`JobSink::stream_part`]).
+    stream_file: Option<BlobWriter>,
 }
 
 impl std::fmt::Debug for BlobSink {
@@ -139,6 +142,7 @@ impl BlobSink {
             files: Vec::new(),
             written: Vec::new(),
             pending: Vec::new(),
+            stream_file: None,
         }
     }
 
@@ -378,6 +382,38 @@ impl JobSink for BlobSink {
         Ok(())
     }
 
+    /// On the local store `stream.tmd` is written as the frames come, by
+    /// the job thread beside the frames' work ([`BlobWriter`]); on S3 it
+    /// is put whole at the end. Written whole, its 17 MB took 35-50 ms of
+    /// the default job's end on this store.
+    fn stream_part(&mut self, bytes: &[u8], last: bool) -> Result<bool, SinkError> {
+        const NAME: &str = "stream.tmd";
+        let key = file_key(&self.prefix, NAME);
+        let mut writer = match self.stream_file.take() {
+            Some(w) => w,
+            None => {
+                self.holds_lease(NAME)?;
+                match self.blobs.writer(&key) {
+                    Ok(Some(w)) => w,
+                    Ok(None) => return Ok(false),
+                    Err(e) => return Err(self.storage(NAME, e)),
+                }
+            }
+        };
+        writer.append(bytes).map_err(|e| self.storage(NAME, e))?;
+        if !last {
+            self.stream_file = Some(writer);
+            return Ok(true);
+        }
+        self.holds_lease(NAME)?;
+        writer.finish().map_err(|e| self.storage(NAME, e))?;
+        self.written.push(key);
+        if !self.files.iter().any(|f| f == NAME) {
+            self.files.push(NAME.to_owned());
+        }
+        Ok(true)
+    }
+
     fn keeps_plan(&self) -> bool {
         true
     }
@@ -475,6 +511,61 @@ mod tests {
         let err = sink.sync_outputs(true).expect_err("the put failed");
         assert_eq!(err.what, "stream.tmd");
         assert!(sink.flags.storage_error.load(Ordering::SeqCst));
+    }
+
+    /// Every file under `dir`, relative to it.
+    fn files_under(dir: &std::path::Path) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut todo = vec![dir.to_owned()];
+        while let Some(d) = todo.pop() {
+            for entry in std::fs::read_dir(&d).expect("a directory").flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    todo.push(path);
+                } else {
+                    let rel = path.strip_prefix(dir).expect("under dir");
+                    out.push(rel.to_string_lossy().into_owned());
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn a_stream_written_in_parts_appears_whole_at_its_key() {
+        let rt = tokio::runtime::Runtime::new().expect("a runtime");
+        let dir = tempfile::tempdir().expect("a directory");
+        let mut sink = sink(&rt, dir.path());
+        let prefix = queue::attempt_prefix("job", "token");
+        let key = file_key(&prefix, "stream.tmd");
+        assert!(sink.stream_part(b"header+0;", false).expect("taken"));
+        assert!(sink.stream_part(b"1;", false).expect("taken"));
+        assert!(
+            !dir.path().join(&key).exists(),
+            "no blob before the stream ends"
+        );
+        assert!(sink.stream_part(b"end", true).expect("taken"));
+        sink.sync_outputs(true).expect("synced");
+        assert_eq!(
+            std::fs::read(dir.path().join(&key)).expect("stored"),
+            b"header+0;1;end"
+        );
+        assert_eq!(files_under(dir.path()), vec![key]);
+        assert_eq!(sink.files(), ["stream.tmd"]);
+    }
+
+    #[test]
+    fn a_stream_left_unfinished_leaves_no_file() {
+        // A run that fails between frames drops its sink with the stream
+        // half written: the partial file goes with it.
+        let rt = tokio::runtime::Runtime::new().expect("a runtime");
+        let dir = tempfile::tempdir().expect("a directory");
+        let mut sink = sink(&rt, dir.path());
+        assert!(sink.stream_part(b"header+0;", false).expect("taken"));
+        assert_eq!(files_under(dir.path()).len(), 1, "the partial file");
+        drop(sink);
+        assert!(files_under(dir.path()).is_empty());
     }
 
     #[test]

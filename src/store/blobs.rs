@@ -157,13 +157,13 @@ impl Blobs {
         let synced = tokio::task::spawn_blocking(move || sync_paths(&paths)).await;
         synced
             .unwrap_or_else(|e| Err(std::io::Error::other(e)))
-            .map_err(sync_error)
+            .map_err(file_error)
     }
 
     /// [`Blobs::sync`] on the calling thread (a job thread).
     pub fn sync_here(&self, keys: &[String]) -> Result<(), BlobError> {
         match self.local_paths(keys)? {
-            Some(paths) => sync_paths(&paths).map_err(sync_error),
+            Some(paths) => sync_paths(&paths).map_err(file_error),
             None => Ok(()),
         }
     }
@@ -287,6 +287,73 @@ impl Blobs {
     }
 }
 
+/// A blob of the local store written in parts as they are made
+/// ([`Blobs::writer`]): the parts go into `<file>.partial` beside the
+/// blob's file, which [`BlobWriter::finish`] renames into place, so the
+/// blob appears whole, as a put's does. The partial file is an ordinary
+/// key (no route names it), so a crash leaves it under its job's prefix,
+/// where deleting the job or the orphan sweep removes it; dropping an
+/// unfinished writer removes it at once.
+#[derive(Debug)]
+pub struct BlobWriter {
+    file: std::fs::File,
+    partial: std::path::PathBuf,
+    path: std::path::PathBuf,
+    finished: bool,
+}
+
+impl Blobs {
+    /// A writer of the blob `key` in parts ([`BlobWriter`]) on the local
+    /// store; `None` on S3, where a blob is put whole (see the module docs
+    /// on multipart uploads).
+    pub fn writer(&self, key: &str) -> Result<Option<BlobWriter>, BlobError> {
+        let Some((local, _)) = &self.local else {
+            return Ok(None);
+        };
+        let path = local.path_to_filesystem(&Path::from(key))?;
+        let mut name = path.file_name().unwrap_or_default().to_owned();
+        name.push(".partial");
+        let partial = path.with_file_name(name);
+        let create = || {
+            if let Some(dir) = partial.parent() {
+                std::fs::create_dir_all(dir)?;
+            }
+            std::fs::File::create(&partial)
+        };
+        let file = create().map_err(file_error)?;
+        Ok(Some(BlobWriter {
+            file,
+            partial,
+            path,
+            finished: false,
+        }))
+    }
+}
+
+impl BlobWriter {
+    /// Appends the next part.
+    pub fn append(&mut self, bytes: &[u8]) -> Result<(), BlobError> {
+        use std::io::Write;
+        self.file.write_all(bytes).map_err(file_error)
+    }
+
+    /// Ends the blob: it is visible whole at its key once this returns,
+    /// durable after [`Blobs::sync`], like a deferred put.
+    pub fn finish(mut self) -> Result<(), BlobError> {
+        std::fs::rename(&self.partial, &self.path).map_err(file_error)?;
+        self.finished = true;
+        Ok(())
+    }
+}
+
+impl Drop for BlobWriter {
+    fn drop(&mut self) {
+        if !self.finished {
+            let _ = std::fs::remove_file(&self.partial);
+        }
+    }
+}
+
 /// Fsyncs each file, then each directory from theirs up to `root` (new
 /// directories' entries live in their parents).
 fn sync_paths(
@@ -309,7 +376,7 @@ fn sync_paths(
     Ok(())
 }
 
-fn sync_error(source: std::io::Error) -> BlobError {
+fn file_error(source: std::io::Error) -> BlobError {
     BlobError(object_store::Error::Generic {
         store: "LocalFileSystem",
         source: Box::new(source),

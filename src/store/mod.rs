@@ -27,7 +27,7 @@ mod db;
 pub mod renders;
 pub mod trees;
 
-pub use blobs::{BlobError, Blobs};
+pub use blobs::{BlobError, BlobWriter, Blobs};
 pub use db::{Backend, Db};
 
 use std::time::{SystemTime, UNIX_EPOCH};

@@ -91,6 +91,18 @@ pub trait JobSink {
     /// Publishes a whole-sequence file: `animation.glb`, `stream.tmd`,
     /// `metrics.json`.
     fn file(&mut self, name: &str, bytes: Vec<u8>) -> Result<(), SinkError>;
+    /// Takes the next bytes of `stream.tmd` as the job makes them: the
+    /// header with frame 0's record, each later record, then (`last`) the
+    /// end record, after which the file is published as
+    /// [`JobSink::file`] publishes it. Returns `false` when the sink
+    /// takes the file whole instead (the default): the runner then keeps
+    /// the bytes and passes them to `file` at the end. A sink that writes
+    /// the file as the frames come spares the job's end the copy of the
+    /// whole stream (17 MB on the default job).
+    fn stream_part(&mut self, bytes: &[u8], last: bool) -> Result<bool, SinkError> {
+        let _ = (bytes, last);
+        Ok(false)
+    }
     /// The queue attempt this sink publishes for (`None` outside the queue,
     /// e.g. the command line). Runners need not care; the test runner
     /// stamps it into its outputs so the scale-out test can prove which
@@ -106,7 +118,9 @@ pub trait JobSink {
     /// Publishes the job's plan, a versioned binary (see
     /// [`PlanReadError`] for what reading it may meet): outputs rendered on
     /// request later start from it ([`JobInput::stored_plan`]) instead of
-    /// planning again. Called after the last frame, before the job ends.
+    /// planning again. Called once before the job ends: before its first
+    /// frame when the plan was kept from an earlier job, else after its
+    /// last.
     fn plan(&mut self, bytes: Vec<u8>) -> Result<(), SinkError> {
         let _ = bytes;
         Ok(())

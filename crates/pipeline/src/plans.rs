@@ -73,6 +73,30 @@ pub(crate) struct Prepared {
     pub plan: Planned,
     pub probed: OnceLock<Probed>,
     pub writers: Writers,
+    /// The plan as stored with each job ([`crate::stored::write`]), once
+    /// encoded: every job of the plan stores the same bytes, and encoding
+    /// them took 6.5 ms of a default job's end.
+    stored: OnceLock<Vec<u8>>,
+}
+
+impl Prepared {
+    /// The plan and its probes as a job stores them, encoded once per
+    /// plan; `None` until the probes are sampled (a job's frames sample
+    /// them first).
+    pub fn stored_bytes(&self) -> Option<&[u8]> {
+        let probed = self.probed.get()?;
+        let bytes = self.stored.get_or_init(|| {
+            let started = std::time::Instant::now();
+            let bytes = crate::stored::write(&self.plan, probed);
+            tracing::debug!(
+                ms = started.elapsed().as_secs_f64() * 1e3,
+                bytes = bytes.len(),
+                "plan encoded"
+            );
+            bytes
+        });
+        Some(bytes)
+    }
 }
 
 /// The writers of a plan's instants, kept between requests. Every
@@ -252,6 +276,7 @@ impl Plans {
             plan,
             probed: probed.map(OnceLock::from).unwrap_or_default(),
             writers: Writers::default(),
+            stored: OnceLock::new(),
         });
         let mut entries = self.lock();
         // A plan of the same job from reloaded trees replaces the older;

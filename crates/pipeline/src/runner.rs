@@ -115,17 +115,25 @@ impl Runner for PipelineRunner {
     /// and publishes it when the sink keeps plans.
     fn run(&self, input: &JobInput<'_>, sink: &mut dyn JobSink) -> Result<JobOutcome, JobError> {
         let prepared = self.prepared(input, Some(&mut *sink))?;
-        let (outcome, probed) = match (&prepared.plan, input.spec) {
-            (Planned::Morph(plan), JobSpec::Morph(m)) => run_morph(m, plan, sink)?,
-            (Planned::Sketch(plan), JobSpec::Sketch(s)) => run_sketch(s, plan, sink)?,
+        // A plan kept from an earlier job is published before the frames,
+        // so it is written beside them rather than at the job's end; a
+        // new one once its probes are sampled, after the frames.
+        let mut unpublished = sink.keeps_plan();
+        if unpublished && let Some(bytes) = prepared.stored_bytes() {
+            sink.plan(bytes.to_vec()).map_err(stored)?;
+            unpublished = false;
+        }
+        let probes = &prepared.probed;
+        let outcome = match (&prepared.plan, input.spec) {
+            (Planned::Morph(plan), JobSpec::Morph(m)) => run_morph(m, plan, probes, sink)?,
+            (Planned::Sketch(plan), JobSpec::Sketch(s)) => run_sketch(s, plan, probes, sink)?,
             _ => return Err(JobError::internal("a kept plan of another kind of job")),
         };
-        let probed = prepared.probed.get_or_init(|| probed);
-        if sink.keeps_plan() {
-            let started = Instant::now();
-            let bytes = crate::stored::write(&prepared.plan, probed);
-            tracing::debug!(ms = ms_since(started), bytes = bytes.len(), "plan encoded");
-            sink.plan(bytes).map_err(stored)?;
+        if unpublished {
+            let bytes = prepared
+                .stored_bytes()
+                .ok_or_else(|| JobError::internal("the plan's probes were never sampled"))?;
+            sink.plan(bytes.to_vec()).map_err(stored)?;
         }
         Ok(outcome)
     }
@@ -396,15 +404,16 @@ fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
 fn run_morph(
     spec: &MorphSpec,
     plan: &MorphPlan,
+    probes: &OnceLock<Probed>,
     sink: &mut dyn JobSink,
-) -> Result<(JobOutcome, Probed), JobError> {
+) -> Result<JobOutcome, JobError> {
     let mut morpher = Morpher::new(plan);
     let mut meter = FrameMeter::new(plan, &MetricsOptions::default());
     let mut series = MorphSeries::with_capacity(spec.render.frames as usize);
     let mut crossings = CrossingMeter::new();
     let mut measure_error = None;
     let outcome = render(
-        plan.topology(),
+        (plan.topology(), probes),
         &spec.render,
         |t, frame| morpher.morph(t, frame),
         |frame| {
@@ -535,14 +544,15 @@ fn jump_ratio(max_jump: &[f32]) -> f32 {
 fn run_sketch(
     spec: &SketchSpec,
     plan: &SketchPlan,
+    probes: &OnceLock<Probed>,
     sink: &mut dyn JobSink,
-) -> Result<(JobOutcome, Probed), JobError> {
+) -> Result<JobOutcome, JobError> {
     let mut sketcher = Sketcher::new(plan);
     let mut meter = SketchMetrics::new(plan);
     let mut series = SketchSeries::with_capacity(spec.render.frames as usize, plan.height());
     let (mut crossings, mut jumps) = (CrossingMeter::new(), JumpMeter::default());
     let outcome = render(
-        plan.topology(),
+        (plan.topology(), probes),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
         |frame| {
@@ -820,17 +830,15 @@ struct Rendered {
     files: Vec<String>,
     /// What the basis animation reached, when one was written.
     animation: Option<BasisReport>,
-    /// The probes the encoders were made with (kept with the plan).
-    probed: Probed,
 }
 
-/// Publishes `metrics.json` and reports the run, handing back its probes.
+/// Publishes `metrics.json` and reports the run.
 fn finish(
     rendered: Rendered,
     mut metrics: Value,
     summary: Value,
     sink: &mut dyn JobSink,
-) -> Result<(JobOutcome, Probed), JobError> {
+) -> Result<JobOutcome, JobError> {
     if let Some(report) = &rendered.animation {
         add_animation_metrics(&mut metrics, report);
     }
@@ -844,7 +852,7 @@ fn finish(
         metrics: summary,
         files,
     };
-    Ok((outcome, rendered.probed))
+    Ok(outcome)
 }
 
 /// The basis or skinned animation's figures in `metrics.json`: its morph
@@ -1026,15 +1034,14 @@ impl Encoders {
     /// `keyframes`.
     fn finish(
         self,
-        mut whole_stream: Vec<u8>,
+        whole_stream: WholeStream,
         keyframes: Keyframes,
         sink: &mut dyn JobSink,
     ) -> Result<(Vec<String>, Option<BasisReport>), JobError> {
         let mut files = Vec::new();
         let mut report = None;
         if let Some(mut stream) = self.stream {
-            stream.finish(&mut whole_stream).map_err(encode)?;
-            sink.file("stream.tmd", whole_stream).map_err(stored)?;
+            whole_stream.finish(&mut stream, sink)?;
             files.push("stream.tmd".into());
         }
         if let Some(builder) = keyframes.animated {
@@ -1049,7 +1056,9 @@ impl Encoders {
 }
 
 /// Computes the spec's frames with `eval`, publishes them through `sink`
-/// in every requested format, and measures each unless the spec is
+/// in every requested format (with the plan's `probes`, sampled by its
+/// first job or render and kept with it: 8.7 ms of a repeated default
+/// job's start went to sampling them again), and measures each unless the spec is
 /// [unmeasured](crate::JobSpec::unmeasured): `construct` right after the
 /// frame is computed (what its construction says), then `measure` with
 /// that and the output-level check of the frame as written. Frame `i`'s
@@ -1063,7 +1072,7 @@ impl Encoders {
 /// took 8.5 ms a frame, and evaluating, constructing and encoding 12.6 ms
 /// one after the other.
 fn render<M: Send>(
-    topology: &FrameTopology,
+    (topology, probes): (&FrameTopology, &OnceLock<Probed>),
     spec: &RenderSpec,
     mut eval: impl FnMut(f32, &mut Frame) + Send,
     mut construct: impl FnMut(&Frame) -> M + Send,
@@ -1072,13 +1081,13 @@ fn render<M: Send>(
 ) -> Result<Rendered, JobError> {
     let frames = spec.frames;
     let mut frame = Frame::default();
-    let probed = probe(&mut eval, &mut frame);
-    let (mut encoders, mut keyframes) = Encoders::new(topology, spec, &probed)?;
+    let probed = probes.get_or_init(|| probe(&mut eval, &mut frame));
+    let (mut encoders, mut keyframes) = Encoders::new(topology, spec, probed)?;
     let mut output_check = spec
         .measured
-        .then(|| OutputCheck::new(topology, &probed, &encoders))
+        .then(|| OutputCheck::new(topology, probed, &encoders))
         .transpose()?;
-    let mut whole_stream = Vec::new();
+    let mut whole_stream = WholeStream::Unasked;
     let mut record = Vec::new();
     // The last frame computed, published while the next one is.
     let mut unpublished: Option<Unpublished> = None;
@@ -1141,13 +1150,11 @@ fn render<M: Send>(
             glb,
             record: std::mem::take(&mut record),
         };
-        if i == 0 {
-            // The first frame (with the stream header) is what a watching
-            // client waits for: published at once, not beside more work.
-            done.publish(&mut whole_stream, sink)?;
-        } else {
-            unpublished = Some(done);
-        }
+        // Frame 0 too is published while the next frame is computed: its
+        // check (every leaf open, its triangle grid built) is the longest
+        // of the sequence, and the pool sat idle for the 10 ms its
+        // publishing took (the stream header and the record, two commits).
+        unpublished = Some(done);
         if let Some(check) = &mut output_check {
             check.swap();
             waiting = constructed;
@@ -1171,7 +1178,6 @@ fn render<M: Send>(
         frames,
         files,
         animation,
-        probed,
     })
 }
 
@@ -1191,7 +1197,11 @@ struct Unpublished {
 
 impl Unpublished {
     /// Publishes the frame (its record as [`publish_record`] does).
-    fn publish(self, whole_stream: &mut Vec<u8>, sink: &mut dyn JobSink) -> Result<(), JobError> {
+    fn publish(
+        self,
+        whole_stream: &mut WholeStream,
+        sink: &mut dyn JobSink,
+    ) -> Result<(), JobError> {
         let delta = publish_record(self.index, self.header, self.record, whole_stream, sink)?;
         sink.frame(FrameOutput {
             index: self.index,
@@ -1225,7 +1235,7 @@ fn publish_record(
     i: u32,
     header: Option<usize>,
     mut record: Vec<u8>,
-    whole_stream: &mut Vec<u8>,
+    whole_stream: &mut WholeStream,
     sink: &mut dyn JobSink,
 ) -> Result<Vec<u8>, JobError> {
     let Some(header) = header else {
@@ -1238,9 +1248,67 @@ fn publish_record(
         sink.stream_header(record[..header].to_vec())
             .map_err(stored)?;
     }
-    whole_stream.extend_from_slice(&record);
+    whole_stream.add(&record, sink)?;
     record.drain(..header);
     Ok(record)
+}
+
+/// `stream.tmd` as the frames are published: handed to the sink in parts
+/// when it takes them ([`JobSink::stream_part`]; asked with the first
+/// record), else kept here and published whole at the end.
+enum WholeStream {
+    Unasked,
+    Parts,
+    Kept(Vec<u8>),
+}
+
+impl WholeStream {
+    /// Adds the next record (the first with the header before it).
+    fn add(&mut self, record: &[u8], sink: &mut dyn JobSink) -> Result<(), JobError> {
+        match self {
+            WholeStream::Unasked => {
+                *self = if sink.stream_part(record, false).map_err(stored)? {
+                    WholeStream::Parts
+                } else {
+                    WholeStream::Kept(record.to_vec())
+                };
+            }
+            WholeStream::Parts => {
+                if !sink.stream_part(record, false).map_err(stored)? {
+                    return Err(JobError::internal("the sink stopped taking stream parts"));
+                }
+            }
+            WholeStream::Kept(bytes) => bytes.extend_from_slice(record),
+        }
+        Ok(())
+    }
+
+    /// Ends the stream (`stream`'s end record) and publishes it.
+    fn finish(
+        self,
+        stream: &mut DeltaStreamWriter,
+        sink: &mut dyn JobSink,
+    ) -> Result<(), JobError> {
+        match self {
+            WholeStream::Parts => {
+                let mut end = Vec::new();
+                stream.finish(&mut end).map_err(encode)?;
+                if !sink.stream_part(&end, true).map_err(stored)? {
+                    return Err(JobError::internal("the sink stopped taking stream parts"));
+                }
+                Ok(())
+            }
+            WholeStream::Kept(mut bytes) => {
+                stream.finish(&mut bytes).map_err(encode)?;
+                sink.file("stream.tmd", bytes).map_err(stored)
+            }
+            WholeStream::Unasked => {
+                let mut bytes = Vec::new();
+                stream.finish(&mut bytes).map_err(encode)?;
+                sink.file("stream.tmd", bytes).map_err(stored)
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -31,6 +31,9 @@ struct MemorySink {
     /// Keep the job's plan, as the service does.
     keep_plan: bool,
     plan: Option<Vec<u8>>,
+    /// Take `stream.tmd` in parts, as the service's local store does.
+    take_parts: bool,
+    parts: Vec<Vec<u8>>,
 }
 
 impl JobSink for MemorySink {
@@ -73,6 +76,18 @@ impl JobSink for MemorySink {
         self.events.push(name.to_owned());
         self.files.insert(name.to_owned(), bytes);
         Ok(())
+    }
+
+    fn stream_part(&mut self, bytes: &[u8], last: bool) -> Result<bool, SinkError> {
+        if !self.take_parts {
+            return Ok(false);
+        }
+        self.parts.push(bytes.to_vec());
+        if last {
+            self.events.push("stream.tmd".into());
+            self.files.insert("stream.tmd".into(), self.parts.concat());
+        }
+        Ok(true)
     }
 
     fn keeps_plan(&self) -> bool {
@@ -139,9 +154,11 @@ fn a_morph_job_publishes_every_output_in_order() {
         outcome.files,
         vec!["stream.tmd", "animation.glb", "metrics.json"]
     );
+    // The header before any frame (the sink asserts it), and before the
+    // whole-sequence files.
     let header_at = sink.events.iter().position(|e| e == "header").unwrap();
-    let frames_at = sink.events.iter().position(|e| e == stage::FRAMES).unwrap();
-    assert!(header_at < frames_at, "{:?}", sink.events);
+    let stream_at = sink.events.iter().position(|e| e == "stream.tmd").unwrap();
+    assert!(header_at < stream_at, "{:?}", sink.events);
     let ts: Vec<f32> = sink.frames.iter().map(|f| f.t).collect();
     assert_eq!(ts, vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0]);
     for f in &sink.frames {
@@ -226,14 +243,14 @@ fn a_frame_the_sink_refuses_ends_the_run_there() {
 }
 
 #[test]
-fn each_frame_is_published_while_the_next_is_computed_but_the_first_at_once() {
-    // The sink's writes overlap the next frame's work; frame 0 (with the
-    // header), which a watching client waits for, goes out before frame
-    // 1 is computed, and the last after the loop.
+fn each_frame_is_published_while_the_next_is_computed() {
+    // The sink's writes overlap the next frame's work, frame 0's (with the
+    // header) too: its check is the longest, and the pool sat idle while
+    // it was published alone. The last goes out after the loop.
     let request = morph_request(5, Outputs::default());
     let mut sink = MemorySink::default();
     run(&request, &morph_trees(), &mut sink).unwrap();
-    assert_eq!(sink.computed_at_publish, vec![0, 2, 3, 4, 5]);
+    assert_eq!(sink.computed_at_publish, vec![1, 2, 3, 4, 5]);
 }
 
 fn heart_request(frames: u32) -> JobRequest {
@@ -954,6 +971,33 @@ fn a_new_job_of_the_same_trees_and_options_starts_from_their_plan() {
         "other outputs than a fresh run's"
     );
     assert!(second.plan == fresh.plan, "another plan stored");
+    let at = |sink: &MemorySink, e: &str| sink.events.iter().position(|x| x == e);
+    assert!(
+        at(&second, "plan") < at(&second, "header"),
+        "a kept plan is published before the frames: {:?}",
+        second.events
+    );
+}
+
+/// A sink that takes `stream.tmd` as the frames come gets the bytes a
+/// sink taking it whole gets: the header with frame 0's record, one part
+/// per later frame, then the end record.
+#[test]
+fn a_stream_taken_in_parts_is_the_stream_taken_whole() {
+    let request = morph_request(5, Outputs::default());
+    let mut whole = MemorySink::default();
+    run(&request, &morph_trees(), &mut whole).unwrap();
+    let mut parts = MemorySink {
+        take_parts: true,
+        ..MemorySink::default()
+    };
+    let outcome = run(&request, &morph_trees(), &mut parts).unwrap();
+    assert_eq!(parts.parts.len(), 6, "five records and the end");
+    assert!(parts.files["stream.tmd"] == whole.files["stream.tmd"]);
+    assert_eq!(
+        outcome.files,
+        vec!["stream.tmd", "animation.glb", "metrics.json"]
+    );
 }
 
 /// Stored plan bytes that are not a plan this build renders are named.

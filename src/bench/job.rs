@@ -14,7 +14,7 @@ use treemorph_gltf::frames::FrameMeshes;
 use treemorph_gltf::stream::StreamOptions;
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_tree::Frame;
-use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions};
+use treemorph_verify::{CrossingMeter, Hints, MeshView, Plausibility, PlausibilityOptions};
 
 use super::stages::tree;
 use super::{Row, measure, thousands};
@@ -234,8 +234,8 @@ fn stored_plan_row(
 
 /// The output check, the crossings and the construction metrics per frame,
 /// each over the default job's whole sequence in order (as a job measures
-/// it: the check keeps what proved each leaf and piece attached from one
-/// frame to the next).
+/// it: the check has the hints of the meshes' writer, and keeps what
+/// proved each leaf and piece attached from one frame to the next).
 pub(super) fn measurement_rows(quick: bool, rows: &mut Vec<Row>) {
     let (trees, _) = default_job();
     let (input, size) = ("maple → conifer", "5,000/5,000 branches, 60 frames");
@@ -282,8 +282,11 @@ pub(super) fn measurement_rows(quick: bool, rows: &mut Vec<Row>) {
         target_ms: None,
         note,
     };
+    // The hints a job's check gets from its meshes' writer.
+    let hints = Hints::of_tubes(plan.topology(), &meshes.branches().vertex_owners());
     let check = per_frame(measure(quick, || {
         let mut check = Plausibility::new();
+        check.set_hints(hints.clone());
         for (branches, leaves, shape) in &written {
             let view = MeshView::of_buffers(branches, leaves, *shape);
             std::hint::black_box(check.check(&view, &PlausibilityOptions::default()))

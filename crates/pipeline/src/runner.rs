@@ -62,7 +62,7 @@ use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
 use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
-use treemorph_verify::{CrossingMeter, MeshView, Plausibility, PlausibilityOptions, Report};
+use treemorph_verify::{CrossingMeter, Hints, MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::plans::{PlanOf, Planned, Plans, Prepared, Writers};
 use crate::{
@@ -766,9 +766,21 @@ impl OutputCheck {
             leaves: MeshBuffers::default(),
             shape: mesh.leaf_shape,
         };
+        let meshes = match (&encoders.glb, &encoders.stream, &own) {
+            (Some(glb), _, _) => Some(glb.meshes()),
+            (None, Some(stream), _) => Some(stream.meshes()),
+            (None, None, own) => own.as_ref(),
+        };
+        let mut check = Plausibility::new();
+        if let Some(meshes) = meshes {
+            check.set_hints(Hints::of_tubes(
+                topology,
+                &meshes.branches().vertex_owners(),
+            ));
+        }
         Ok(OutputCheck {
             checker: Checker {
-                check: Plausibility::new(),
+                check,
                 options: PlausibilityOptions::default(),
                 geometry: geometry(),
             },

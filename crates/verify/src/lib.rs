@@ -92,8 +92,8 @@ mod sweep;
 pub use crossings::{CrossingMeter, SiblingCrossings};
 pub use glb::{GlbMeshes, ReadGlbError, read_glb};
 pub use plausibility::{
-    FloatingLeaf, FloatingPiece, LeafLayout, MeshView, Plausibility, PlausibilityOptions, Report,
-    VerifyError,
+    FloatingLeaf, FloatingPiece, Hints, LeafLayout, MeshView, Plausibility, PlausibilityOptions,
+    Report, VerifyError,
 };
 
 #[cfg(test)]

@@ -2,7 +2,7 @@ use glam::Vec3;
 use treemorph_gltf::frame_glb::{FrameGlbOptions, FrameGlbWriter};
 use treemorph_tree::{Frame, FrameTopology};
 
-use crate::{LeafLayout, MeshView, Plausibility, PlausibilityOptions, read_glb};
+use crate::{Hints, LeafLayout, MeshView, Plausibility, PlausibilityOptions, read_glb};
 
 /// A closed tube of `sides` sides and radius `r` from `a` up to `b`
 /// (vertical axis), appended to `positions`/`indices`.
@@ -288,8 +288,9 @@ fn pieces_out_of_order_in_the_index_buffer_check_alike() {
 
 /// Scatters a sample tree a little more each frame, so leaves come loose
 /// one after another, and checks every frame with one fast context (as
-/// over a job's sequence) and with the reference: equal reports. With
-/// `reversed`, the branch triangles are listed last first.
+/// over a job's sequence), with one that also has the writer's hints (as
+/// a job's has), and with the reference: equal reports. With `reversed`,
+/// the branch triangles are listed last first.
 fn fast_and_reference_over_a_sequence(reversed: bool) {
     let tree = treemorph_gltf::sample::sample_tree(400);
     let topology = FrameTopology::of_tree(&tree);
@@ -297,6 +298,11 @@ fn fast_and_reference_over_a_sequence(reversed: bool) {
     let mut writer =
         FrameGlbWriter::new(&topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
     let (mut fast, mut reference) = (Plausibility::new(), Plausibility::new());
+    let mut hinted = Plausibility::new();
+    hinted.set_hints(Hints::of_tubes(
+        &topology,
+        &writer.meshes().branches().vertex_owners(),
+    ));
     let opts = PlausibilityOptions::default();
     let base = frame.clone();
     for step in 0..6 {
@@ -324,10 +330,44 @@ fn fast_and_reference_over_a_sequence(reversed: bool) {
         let a = fast.check(&view, &opts).unwrap();
         let b = reference.check_reference(&view, &opts).unwrap();
         assert_eq!(a, b, "step {step}");
+        assert_eq!(
+            hinted.check(&view, &opts).unwrap(),
+            b,
+            "step {step}, hinted"
+        );
         if step == 5 {
             assert!(a.floating_leaves > 0);
         }
     }
+}
+
+/// A generated maple's topology and first frame, with the leaves that
+/// `moved` picks (from the leaf count) moved `away`.
+fn maple_with_leaves_moved(
+    (seed, size): (u64, u32),
+    moved: impl Fn(usize) -> Vec<usize>,
+    away: Vec3,
+) -> (FrameTopology, Frame, Vec<usize>) {
+    let tree = treemorph_generate::generate(
+        &treemorph_generate::GenerateOptions::new(treemorph_generate::Preset::Maple, seed)
+            .with_size(size),
+    )
+    .unwrap();
+    let topology = FrameTopology::of_tree(&tree);
+    let mut frame = Frame::of_tree(&tree);
+    let moved = moved(frame.leaves.len());
+    for &i in &moved {
+        frame.leaves[i].anchor += away;
+    }
+    (topology, frame, moved)
+}
+
+/// A frame GLB writer that has written `frame`.
+fn written(topology: &FrameTopology, frame: &Frame) -> FrameGlbWriter {
+    let mut writer =
+        FrameGlbWriter::new(topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
+    writer.write(frame).unwrap();
+    writer
 }
 
 #[test]
@@ -335,26 +375,73 @@ fn a_first_frame_searched_in_halves_names_its_floating_leaves() {
     // Thousands of open leaves (a fresh context has every leaf open) are
     // searched on two threads: leaves moved away in either half must come
     // back as themselves, in order.
-    let tree = treemorph_generate::generate(
-        &treemorph_generate::GenerateOptions::new(treemorph_generate::Preset::Maple, 1)
-            .with_size(2_000),
-    )
-    .unwrap();
-    let topology = FrameTopology::of_tree(&tree);
-    let mut frame = Frame::of_tree(&tree);
-    let n = frame.leaves.len();
-    assert!(n >= 2_048, "{n} leaves: too few to split");
-    let moved = [3, n / 2 - 1, n / 2 + 5, n - 2];
-    for &i in &moved {
-        frame.leaves[i].anchor += Vec3::new(50.0, 0.0, 0.0);
-    }
-    let mut writer =
-        FrameGlbWriter::new(&topology, &frame.radii, &FrameGlbOptions::default()).unwrap();
-    writer.write(&frame).unwrap();
+    let split = |n: usize| {
+        assert!(n >= 2_048, "{n} leaves: too few to split");
+        vec![3, n / 2 - 1, n / 2 + 5, n - 2]
+    };
+    let (topology, frame, moved) =
+        maple_with_leaves_moved((1, 2_000), split, Vec3::new(50.0, 0.0, 0.0));
+    let writer = written(&topology, &frame);
     let view = MeshView::of_frame_meshes(writer.meshes());
     let report = Plausibility::new()
         .check(&view, &PlausibilityOptions::default())
         .unwrap();
-    let floating: Vec<u32> = report.floating.iter().map(|f| f.leaf).collect();
-    assert_eq!(floating, moved.map(|i| i as u32));
+    let floating: Vec<usize> = report.floating.iter().map(|f| f.leaf as usize).collect();
+    assert_eq!(floating, moved);
+}
+
+/// A first frame (every leaf and tube without a proof) checked with the
+/// writer's hints, with hints that name the wrong tubes, and without
+/// any: the same report as the reference's, floating leaves and a
+/// floating tube included. Hints only order the search.
+#[test]
+fn hints_right_or_wrong_leave_a_first_frames_report_as_it_is() {
+    let three = |n: usize| vec![0, n / 3, n - 1];
+    let (topology, frame, _) = maple_with_leaves_moved((2, 1_500), three, Vec3::X * 40.0);
+    let n = frame.leaves.len();
+    let writer = written(&topology, &frame);
+    let owners = writer.meshes().branches().vertex_owners();
+    // The last tube's vertices, moved away in the mesh: a floating tube.
+    let mut branch_positions = writer.meshes().branches().buffers().positions.clone();
+    let last = owners.last().unwrap().0;
+    for (p, &(strand, _)) in branch_positions.iter_mut().zip(&owners) {
+        if strand == last {
+            *p += Vec3::new(0.0, 0.0, 30.0);
+        }
+    }
+    let view = MeshView {
+        branch_positions: &branch_positions,
+        ..MeshView::of_frame_meshes(writer.meshes())
+    };
+    let opts = PlausibilityOptions::default();
+    let reference = Plausibility::new().check_reference(&view, &opts).unwrap();
+    assert!(
+        reference.floating_leaves >= 3,
+        "{}",
+        reference.floating_leaves
+    );
+    assert!(reference.floating_branches >= 1);
+
+    let right = Hints::of_tubes(&topology, &owners);
+    let rotate = |v: &mut u32, by: u32| *v = (*v + by) % view.branch_positions.len() as u32;
+    let mut wrong = right.clone();
+    wrong.leaf_hosts.iter_mut().for_each(|v| rotate(v, 977));
+    wrong
+        .tube_hosts
+        .iter_mut()
+        .for_each(|(_, h)| rotate(h, 1_531));
+    wrong.leaf_hosts.truncate(n / 2);
+    for hints in [None, Some(right), Some(wrong)] {
+        let mut check = Plausibility::new();
+        if let Some(h) = hints.clone() {
+            check.set_hints(h);
+        }
+        let report = check.check(&view, &opts).unwrap();
+        assert_eq!(
+            report,
+            reference,
+            "hints {:?}",
+            hints.map(|h| h.leaf_hosts.len())
+        );
+    }
 }

@@ -268,8 +268,13 @@ pub struct Plausibility {
     sweep: Sweep,
     /// The frame's bounds.
     frame_bounds: (Vec3, Vec3),
-    /// Per piece, the bounds of its visible triangles.
+    /// Per piece, the bounds of its visible triangles, once gathered this
+    /// frame (`pieces_bounded`).
     piece_boxes: Vec<(Vec3, Vec3)>,
+    pieces_bounded: bool,
+    /// The root piece: the one holding the lowest vertex of a visible
+    /// triangle (the first such vertex, in triangle order).
+    root: Option<u32>,
     /// Leaves and pieces left open by the shortcuts this frame, and the
     /// open leaves' vertices.
     open_leaves: Vec<OpenLeaf>,
@@ -830,7 +835,11 @@ impl Plausibility {
     }
 
     /// Gathers the visible branch triangles (non-zero area), their pieces
-    /// and bounds, and lists them by piece.
+    /// and bounds, lists them by piece and finds the root piece: one pass,
+    /// in which each piece's triangles are counted and the lowest vertex
+    /// kept (a second pass over the triangles for each was 3 % of a job's
+    /// work). The pieces' bounds, which only a sweep reads, are gathered
+    /// when one runs ([`Plausibility::bound_pieces`]).
     fn collect_triangles(&mut self, meshes: &MeshView<'_>) {
         self.tris.clear();
         self.tri_piece.clear();
@@ -840,13 +849,20 @@ impl Plausibility {
         self.vertex_visible.clear();
         self.vertex_visible
             .resize(meshes.branch_positions.len(), false);
+        self.piece_starts.clear();
+        self.piece_starts.resize(self.pieces + 1, 0);
         let p = meshes.branch_positions;
+        let (mut ascending, mut last_piece) = (true, None);
+        let mut lowest = (f32::INFINITY, None);
         for (i, t) in meshes.branch_indices.chunks_exact(3).enumerate() {
             let tri = [p[t[0] as usize], p[t[1] as usize], p[t[2] as usize]];
             // In 4-lane registers: the same products, sums and comparisons
             // (so the same visibility and bounds) in fewer instructions
-            // than glam's scalar `Vec3` on the baseline target.
-            let [a, b, c] = tri.map(Vec3A::from);
+            // than glam's scalar `Vec3` on the baseline target. Each is
+            // made from its vertex, not from `tri`: read back from the
+            // array on the stack, 16 bytes over three 4-byte stores, the
+            // loads stalled (a third of this pass in a profile).
+            let [a, b, c] = [0, 1, 2].map(|k| Vec3A::from(p[t[k] as usize]));
             if (b - a).cross(c - a).length_squared() <= 0.0 {
                 self.visible_of.push(u32::MAX);
                 continue;
@@ -856,17 +872,41 @@ impl Plausibility {
             for &v in t {
                 self.vertex_visible[v as usize] = true;
             }
+            let piece = self.piece_of[t[0] as usize];
+            self.piece_starts[piece as usize + 1] += 1;
+            if last_piece != Some(piece) {
+                ascending &= last_piece.is_none_or(|l| l < piece);
+                last_piece = Some(piece);
+            }
+            // The first of the lowest vertices, in triangle order.
+            for y in [a.y, b.y, c.y] {
+                if y < lowest.0 {
+                    lowest = (y, Some(piece));
+                }
+            }
             self.tris.push(tri);
-            self.tri_piece.push(self.piece_of[t[0] as usize]);
+            self.tri_piece.push(piece);
             self.boxes
                 .push((a.min(b).min(c).into(), a.max(b).max(c).into()));
         }
-        self.piece_starts.clear();
-        self.piece_starts.resize(self.pieces + 1, 0);
+        self.root = lowest.1;
+        for i in 0..self.pieces {
+            self.piece_starts[i + 1] += self.piece_starts[i];
+        }
+        self.list_by_piece(ascending);
+        self.pieces_bounded = false;
+    }
+
+    /// Gathers each piece's bounds (`piece_boxes`) from its triangles',
+    /// unless they are gathered this frame.
+    fn bound_pieces(&mut self) {
+        if self.pieces_bounded {
+            return;
+        }
+        self.pieces_bounded = true;
         self.piece_boxes.clear();
         self.piece_boxes
             .resize(self.pieces, (Vec3::INFINITY, Vec3::NEG_INFINITY));
-        let mut ascending = true;
         // The bounds of the current run of one piece's triangles, kept in
         // registers and merged into the piece's when the run ends: merging
         // each triangle in place went through memory and was most of this
@@ -878,7 +918,6 @@ impl Plausibility {
             *b = (lo.min(b.0.into()).into(), hi.max(b.1.into()).into());
         };
         for (&piece, &(lo, hi)) in self.tri_piece.iter().zip(&self.boxes) {
-            self.piece_starts[piece as usize + 1] += 1;
             match &mut run {
                 Some((current, l, h)) if *current == piece => {
                     *l = l.min(lo.into());
@@ -886,7 +925,6 @@ impl Plausibility {
                 }
                 _ => {
                     if let Some(ended) = run {
-                        ascending &= ended.0 < piece;
                         merge(ended);
                     }
                     run = Some((piece, lo.into(), hi.into()));
@@ -896,10 +934,6 @@ impl Plausibility {
         if let Some(ended) = run {
             merge(ended);
         }
-        for i in 0..self.pieces {
-            self.piece_starts[i + 1] += self.piece_starts[i];
-        }
-        self.list_by_piece(ascending);
     }
 
     /// Lists the visible triangles by piece (`piece_tris`, with
@@ -1140,6 +1174,7 @@ impl Plausibility {
             })
             .collect();
         let vertices = self.base_vertices(meshes);
+        self.bound_pieces();
         let triangles = Triangles {
             tris: &self.tris,
             boxes: &self.boxes,
@@ -1316,17 +1351,7 @@ impl Plausibility {
         reference: bool,
         report: &mut Report,
     ) {
-        // The root piece holds the lowest vertex of a visible triangle.
-        let mut root = None;
-        let mut lowest = f32::INFINITY;
-        for (t, &piece) in self.tris.iter().zip(&self.tri_piece) {
-            for v in t {
-                if v.y < lowest {
-                    lowest = v.y;
-                    root = Some(piece);
-                }
-            }
-        }
+        let root = self.root;
         let mut open = std::mem::take(&mut self.open_pieces);
         open.clear();
         for piece in 0..self.pieces {

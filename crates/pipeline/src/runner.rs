@@ -1208,20 +1208,29 @@ struct Unpublished {
 }
 
 impl Unpublished {
-    /// Publishes the frame (its record as [`publish_record`] does).
+    /// Publishes the frame: the stream header first for frame 0
+    /// ([`publish_header`]), then the frame, then its record in the whole
+    /// stream.
     fn publish(
         self,
         whole_stream: &mut WholeStream,
         sink: &mut dyn JobSink,
     ) -> Result<(), JobError> {
-        let delta = publish_record(self.index, self.header, self.record, whole_stream, sink)?;
+        let delta = publish_header(self.index, self.header, &self.record, sink)?;
         sink.frame(FrameOutput {
             index: self.index,
             t: self.t,
             glb: self.glb,
             delta,
         })
-        .map_err(stored)
+        .map_err(stored)?;
+        // The whole stream's copy after the frame is out: written to a
+        // file as it comes, frame 0's (with the header, a few MB) delayed
+        // the first frame's event by about 10 ms.
+        if self.header.is_some() {
+            whole_stream.add(&self.record, sink)?;
+        }
+        Ok(())
     }
 }
 
@@ -1240,14 +1249,13 @@ fn encode_and_copy(
     Ok(encoded)
 }
 
-/// Publishes the stream header before frame 0, appends the record to the
-/// whole stream, and returns the frame's delta: the record itself, less
-/// the header (no copy); empty when the stream was not requested.
-fn publish_record(
+/// Publishes the stream header before frame 0 and returns the frame's
+/// delta: the record less the header; empty when the stream was not
+/// requested.
+fn publish_header(
     i: u32,
     header: Option<usize>,
-    mut record: Vec<u8>,
-    whole_stream: &mut WholeStream,
+    record: &[u8],
     sink: &mut dyn JobSink,
 ) -> Result<Vec<u8>, JobError> {
     let Some(header) = header else {
@@ -1260,9 +1268,7 @@ fn publish_record(
         sink.stream_header(record[..header].to_vec())
             .map_err(stored)?;
     }
-    whole_stream.add(&record, sink)?;
-    record.drain(..header);
-    Ok(record)
+    Ok(record[header..].to_vec())
 }
 
 /// `stream.tmd` as the frames are published: handed to the sink in parts

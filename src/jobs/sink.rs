@@ -4,7 +4,9 @@
 //! database (and S3) with `Handle::block_on` and writes local blobs on the
 //! job thread itself, at job priority ([`Blobs::put_deferred_here`]); the
 //! large outputs of a job's end are written on a thread of their own at the
-//! same priority while the job thread goes on ([`BlobSink::put_behind`]).
+//! same priority while the job thread goes on ([`BlobSink::put_behind`]);
+//! on the local store `stream.tmd` is written as the frames come
+//! ([`JobSink::stream_part`]).
 //! Every output is written to the blob store
 //! under the attempt's prefix **first**, and only then made visible by a
 //! row update fenced by the attempt token (`frames_ready = n + 1`,

@@ -4,7 +4,9 @@
 //!
 //! Puts are atomic: the local store writes a staging file and renames it
 //! into place; on S3 every blob is one `PutObject`, which becomes visible
-//! whole or not at all.
+//! whole or not at all. A blob written in parts as a job makes it
+//! ([`BlobWriter`], the local store only) is renamed into place the same
+//! way once its last part is written.
 //!
 //! Durability on the local store comes in two steps:
 //! [`Blobs::put_deferred`] returns once the rename is done (safe against a

@@ -766,13 +766,8 @@ impl OutputCheck {
             leaves: MeshBuffers::default(),
             shape: mesh.leaf_shape,
         };
-        let meshes = match (&encoders.glb, &encoders.stream, &own) {
-            (Some(glb), _, _) => Some(glb.meshes()),
-            (None, Some(stream), _) => Some(stream.meshes()),
-            (None, None, own) => own.as_ref(),
-        };
         let mut check = Plausibility::new();
-        if let Some(meshes) = meshes {
+        if let Some(meshes) = checked_meshes(encoders, own.as_ref()) {
             check.set_hints(Hints::of_tubes(
                 topology,
                 &meshes.branches().vertex_owners(),
@@ -797,6 +792,19 @@ impl OutputCheck {
     }
 }
 
+/// The meshes the output check reads: the per-frame GLB's, else the
+/// stream's, else the check's `own`.
+fn checked_meshes<'a>(
+    encoders: &'a Encoders,
+    own: Option<&'a FrameMeshes>,
+) -> Option<&'a FrameMeshes> {
+    match (&encoders.glb, &encoders.stream) {
+        (Some(glb), _) => Some(glb.meshes()),
+        (None, Some(stream)) => Some(stream.meshes()),
+        (None, None) => own,
+    }
+}
+
 impl NextGeometry {
     /// Copies the meshes `encoders` just wrote for `frame` (or meshes the
     /// frame, when no encoder does).
@@ -804,12 +812,8 @@ impl NextGeometry {
         if let Some(own) = &mut self.own {
             own.mesh(frame).map_err(encode)?;
         }
-        let meshes = match (&encoders.glb, &encoders.stream, &self.own) {
-            (Some(glb), _, _) => glb.meshes(),
-            (None, Some(stream), _) => stream.meshes(),
-            (None, None, Some(own)) => own,
-            (None, None, None) => return Err(JobError::internal("no meshes to check")),
-        };
+        let meshes = checked_meshes(encoders, self.own.as_ref())
+            .ok_or_else(|| JobError::internal("no meshes to check"))?;
         let to = &mut self.geometry;
         copy_geometry(&mut to.branches, meshes.branches().buffers());
         copy_geometry(&mut to.leaves, meshes.leaves().buffers());
@@ -1162,10 +1166,9 @@ fn render<M: Send>(
             glb,
             record: std::mem::take(&mut record),
         };
-        // Frame 0 too is published while the next frame is computed: its
-        // check (every leaf open, its triangle grid built) is the longest
-        // of the sequence, and the pool sat idle for the 10 ms its
-        // publishing took (the stream header and the record, two commits).
+        // Frame 0 too is published while the next frame is computed: the
+        // pool sat idle for the 10 ms its publishing took (the stream
+        // header and the record, two commits).
         unpublished = Some(done);
         if let Some(check) = &mut output_check {
             check.swap();
@@ -1307,25 +1310,19 @@ impl WholeStream {
         stream: &mut DeltaStreamWriter,
         sink: &mut dyn JobSink,
     ) -> Result<(), JobError> {
-        match self {
-            WholeStream::Parts => {
-                let mut end = Vec::new();
-                stream.finish(&mut end).map_err(encode)?;
-                if !sink.stream_part(&end, true).map_err(stored)? {
-                    return Err(JobError::internal("the sink stopped taking stream parts"));
-                }
-                Ok(())
-            }
-            WholeStream::Kept(mut bytes) => {
-                stream.finish(&mut bytes).map_err(encode)?;
-                sink.file("stream.tmd", bytes).map_err(stored)
-            }
-            WholeStream::Unasked => {
-                let mut bytes = Vec::new();
-                stream.finish(&mut bytes).map_err(encode)?;
-                sink.file("stream.tmd", bytes).map_err(stored)
-            }
+        let parts = matches!(self, WholeStream::Parts);
+        let mut bytes = match self {
+            WholeStream::Kept(bytes) => bytes,
+            WholeStream::Parts | WholeStream::Unasked => Vec::new(),
+        };
+        stream.finish(&mut bytes).map_err(encode)?;
+        if !parts {
+            return sink.file("stream.tmd", bytes).map_err(stored);
         }
+        if !sink.stream_part(&bytes, true).map_err(stored)? {
+            return Err(JobError::internal("the sink stopped taking stream parts"));
+        }
+        Ok(())
     }
 }
 

@@ -110,10 +110,14 @@ fn leaf_within(
 /// material pair: keyed by anchor, orientation and size rounded to a
 /// millionth of the height (copies of one leaf are computed alike, so
 /// they agree far closer than that).
+///
+/// The leaves are sorted by a hash of their key, and only runs of one
+/// hash (almost always leaves with one key) are compared key by key:
+/// sorting the 80-byte keys themselves was most of this count's time.
 fn coincident_leaves(plan: &MorphPlan, frame: &Frame) -> u32 {
     let scale = 1e6 / plan.height().max(f32::MIN_POSITIVE);
     let q = |x: f32, s: f32| (x * s).round() as i64;
-    let mut keys: Vec<([i64; 9], [u32; 2])> = frame
+    let keyed: Vec<([i64; 9], [u32; 2])> = frame
         .leaves
         .iter()
         .zip(&plan.topology().leaves)
@@ -134,14 +138,87 @@ fn coincident_leaves(plan: &MorphPlan, frame: &Frame) -> u32 {
             (key, t.materials)
         })
         .collect();
-    keys.sort_unstable();
+    count_coincident(&keyed)
+}
+
+/// How many of `keyed` (a leaf key and material pair each) share their key
+/// with one of another material pair ([`coincident_leaves`]).
+fn count_coincident(keyed: &[([i64; 9], [u32; 2])]) -> u32 {
+    let mut hashed: Vec<(u64, u32)> = keyed
+        .iter()
+        .enumerate()
+        .map(|(i, (key, _))| (key_hash(key), i as u32))
+        .collect();
+    hashed.sort_unstable();
     let mut count = 0u32;
-    for group in keys.chunk_by(|a, b| a.0 == b.0) {
-        if group.iter().any(|g| g.1 != group[0].1) {
-            count += group.len() as u32;
+    let mut run = Vec::new();
+    for same_hash in hashed.chunk_by(|a, b| a.0 == b.0) {
+        if same_hash.len() < 2 {
+            continue;
+        }
+        run.clear();
+        run.extend(same_hash.iter().map(|&(_, i)| keyed[i as usize]));
+        run.sort_unstable();
+        for group in run.chunk_by(|a, b| a.0 == b.0) {
+            if group.iter().any(|g| g.1 != group[0].1) {
+                count += group.len() as u32;
+            }
         }
     }
     count
+}
+
+/// A 64-bit hash of a leaf key (a multiply-rotate mix, as FxHash does):
+/// equal keys hash alike, and [`coincident_leaves`] compares the keys of
+/// equal hashes, so a collision costs a comparison, never a miscount.
+fn key_hash(key: &[i64; 9]) -> u64 {
+    key.iter().fold(0u64, |h, &x| {
+        (h.rotate_left(5) ^ x as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95)
+    })
+}
+
+/// Chains of `frame` whose junction is off their parent's axis by more
+/// than the parent's radius there plus `eps` (roots: off the root node).
+fn floating_branches(plan: &MorphPlan, frame: &Frame, eps: f32) -> u32 {
+    let (pos, rad) = (&frame.positions, &frame.radii);
+    let mut floating = 0u32;
+    for c in plan.chains() {
+        let junction = pos[c.nodes.start as usize];
+        let off = match c.parent {
+            None => junction.distance(pos[0]) > eps,
+            Some(p) => {
+                let r = plan.chains()[p as usize].nodes.clone();
+                let r = r.start as usize..r.end as usize;
+                let (d, radius) = to_polyline(junction, &pos[r.clone()], &rad[r]);
+                d > radius + eps
+            }
+        };
+        floating += u32::from(off);
+    }
+    floating
+}
+
+/// Per union chain, the leaves on it ([`LeafMode::OnChain`] with it as
+/// host), in leaf order, flattened with offsets.
+fn leaves_on_chains(plan: &MorphPlan) -> (Vec<u32>, Vec<u32>) {
+    let n = plan.chains().len();
+    let on = |l: &&crate::plan::LeafPlan| l.mode == LeafMode::OnChain && (l.host as usize) < n;
+    let mut offsets = vec![0u32; n + 1];
+    for l in plan.leaf_plans.iter().filter(on) {
+        offsets[l.host as usize + 1] += 1;
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut leaves = vec![0u32; offsets[n] as usize];
+    for (k, l) in plan.leaf_plans.iter().enumerate() {
+        if on(&l) {
+            leaves[fill[l.host as usize] as usize] = k as u32;
+            fill[l.host as usize] += 1;
+        }
+    }
+    (leaves, offsets)
 }
 
 /// Volume over π of a frustum (a segment with linearly varying radius): it
@@ -177,6 +254,14 @@ pub struct FrameMeter<'p> {
     /// Per union leaf: the host (by rank) and segment that held it within
     /// reach last frame ([`leaf_within`]).
     leaf_hints: Vec<(u32, u32)>,
+    /// Per union leaf: its schedule weight in the frame measured
+    /// (scratch), found once for the three measures that read it.
+    leaf_w: Vec<f32>,
+    /// Per union chain, the leaves on it ([`LeafMode::OnChain`]), in
+    /// leaf order, flattened (`on_chain_offsets`): a trunk's T(z) reads
+    /// only those, where it scanned every leaf for them.
+    on_chain: Vec<u32>,
+    on_chain_offsets: Vec<u32>,
 }
 
 /// Root union chains that coincide at one end of the morph.
@@ -291,6 +376,7 @@ impl<'p> FrameMeter<'p> {
                 }),
             }
         }
+        let (on_chain, on_chain_offsets) = leaves_on_chains(plan);
         FrameMeter {
             plan,
             options: options.clone(),
@@ -305,7 +391,35 @@ impl<'p> FrameMeter<'p> {
             trunks,
             supports: Vec::new(),
             leaf_hints: vec![(0, 0); plan.leaf_hosts.len()],
+            leaf_w: Vec::new(),
+            on_chain,
+            on_chain_offsets,
         }
+    }
+
+    /// Leaves of `frame` farther than their allowed offset (plus `eps`)
+    /// from their hosts' axes.
+    fn floating_leaves(&mut self, frame: &Frame, eps: f32) -> u32 {
+        let plan = self.plan;
+        let mut floating = 0u32;
+        for (i, ((leaf, len), hosts)) in frame
+            .leaves
+            .iter()
+            .zip(&plan.leaf_offset_len)
+            .zip(&plan.leaf_hosts)
+            .enumerate()
+        {
+            let w = self.leaf_w[i];
+            let allowed = len[0] + (len[1] - len[0]) * w + eps;
+            let ranges = hosts.map(|h| {
+                let r = &plan.chains()[h as usize].nodes;
+                r.start as usize..r.end as usize
+            });
+            let pos = &frame.positions;
+            let near = leaf_within(leaf.anchor, pos, &ranges, allowed, &mut self.leaf_hints[i]);
+            floating += u32::from(!near);
+        }
+        floating
     }
 
     /// Forgets the previous frame (the next `max_jump` is 0).
@@ -321,42 +435,11 @@ impl<'p> FrameMeter<'p> {
         let t = plan.schedule.paced(frame.t.clamp(0.0, 1.0));
         let height = plan.height();
         let eps = self.options.floating_epsilon * height;
-        let pos = &frame.positions;
-        let rad = &frame.radii;
-
-        let mut floating_branches = 0u32;
-        for c in plan.chains() {
-            let junction = pos[c.nodes.start as usize];
-            let floating = match c.parent {
-                None => junction.distance(pos[0]) > eps,
-                Some(p) => {
-                    let r = plan.chains()[p as usize].nodes.clone();
-                    let r = r.start as usize..r.end as usize;
-                    let (d, radius) = to_polyline(junction, &pos[r.clone()], &rad[r]);
-                    d > radius + eps
-                }
-            };
-            floating_branches += u32::from(floating);
-        }
-
-        let mut floating_leaves = 0u32;
-        for (i, ((leaf, len), hosts)) in frame
-            .leaves
-            .iter()
-            .zip(&plan.leaf_offset_len)
-            .zip(&plan.leaf_hosts)
-            .enumerate()
-        {
-            let w = plan.schedule.leaf(i, t);
-            let allowed = len[0] + (len[1] - len[0]) * w + eps;
-            let ranges = hosts.map(|h| {
-                let r = &plan.chains()[h as usize].nodes;
-                r.start as usize..r.end as usize
-            });
-            let near = leaf_within(leaf.anchor, pos, &ranges, allowed, &mut self.leaf_hints[i]);
-            floating_leaves += u32::from(!near);
-        }
-
+        self.leaf_w.clear();
+        self.leaf_w
+            .extend((0..frame.leaves.len()).map(|i| plan.schedule.leaf(i, t)));
+        let floating_branches = floating_branches(plan, frame, eps);
+        let floating_leaves = self.floating_leaves(frame, eps);
         let mtsw = self.mtsw(frame, t);
 
         let max_jump = self.jumps.jump(frame) / height;
@@ -390,7 +473,7 @@ impl<'p> FrameMeter<'p> {
         };
         self.leaf_weight.fill(0.0);
         for (i, leaf) in frame.leaves.iter().enumerate() {
-            let w = schedule.leaf(i, t);
+            let w = self.leaf_w[i];
             let host = plan.leaf_hosts[i][usize::from(w >= 0.5)];
             self.leaf_weight[host as usize] += leaf_density
                 * leaf.width as f64
@@ -537,17 +620,18 @@ impl<'p> FrameMeter<'p> {
             below += frustum(ra, cut, f * pos[a].distance(pos[b]) as f64) * wood * share;
         }
         let leaf_density = self.options.leaf_area_density as f64;
-        for (k, (leaf, l)) in frame.leaves.iter().zip(&plan.leaf_plans).enumerate() {
-            if l.mode == LeafMode::OnChain && l.host as usize == i {
-                let w = plan.schedule.leaf(k, t);
-                let p = l.param[0] + (l.param[1] - l.param[0]) * w;
-                if p < z {
-                    let s = self.leaf_share[k];
-                    below += leaf_density
-                        * leaf.width as f64
-                        * leaf.height as f64
-                        * ((1.0 - w) * s[0] + w * s[1]) as f64;
-                }
+        let on_chain = self.on_chain_offsets[i] as usize..self.on_chain_offsets[i + 1] as usize;
+        for &k in &self.on_chain[on_chain] {
+            let (k, leaf) = (k as usize, &frame.leaves[k as usize]);
+            let l = &plan.leaf_plans[k];
+            let w = self.leaf_w[k];
+            let p = l.param[0] + (l.param[1] - l.param[0]) * w;
+            if p < z {
+                let s = self.leaf_share[k];
+                below += leaf_density
+                    * leaf.width as f64
+                    * leaf.height as f64
+                    * ((1.0 - w) * s[0] + w * s[1]) as f64;
             }
         }
         (self.subtree[i] - below).max(0.0)
@@ -570,6 +654,24 @@ mod tests {
     use proptest::prelude::*;
 
     proptest! {
+        /// The hashed grouping counts what comparing every two leaves
+        /// counts: leaves whose key another leaf of a different material
+        /// pair shares.
+        #[test]
+        fn coincident_leaves_are_those_sharing_a_key_across_materials(
+            leaves in prop::collection::vec((0i64..4, 0i64..3, 0u32..3), 0..40),
+        ) {
+            let keyed: Vec<([i64; 9], [u32; 2])> = leaves
+                .iter()
+                .map(|&(a, b, m)| ([a, b, 0, 0, 0, 0, 1, 2, 2], [m, m.min(1)]))
+                .collect();
+            let expected = keyed
+                .iter()
+                .filter(|(k, m)| keyed.iter().any(|(k2, m2)| k2 == k && m2 != m))
+                .count() as u32;
+            prop_assert_eq!(count_coincident(&keyed), expected);
+        }
+
         /// With any hint, a leaf is within reach exactly when the nearest
         /// point of one of its hosts' axes is, as `to_polyline` measures.
         #[test]

@@ -253,14 +253,25 @@ impl JumpMeter {
         let count = frame.positions.len() + 4 * frame.leaves.len();
         let compare = self.has_previous && self.previous.len() == count;
         self.previous.resize(count, Vec3::ZERO);
-        // One pass (a leaf's corners cost two rotations), squared
-        // distances: the square root of the largest is the largest root.
+        // Squared distances: the square root of the largest is the largest
+        // root. The nodes, then each leaf's four corners (two rotations),
+        // in the order of `Frame::points`, in two plain loops: one
+        // iterator chaining both was about half as fast.
+        let (nodes, corners) = self.previous.split_at_mut(frame.positions.len());
         let mut max2 = 0.0f32;
-        for (kept, p) in self.previous.iter_mut().zip(frame.points()) {
+        let mut keep = |kept: &mut Vec3, p: Vec3| {
             if compare {
                 max2 = max2.max(p.distance_squared(*kept));
             }
             *kept = p;
+        };
+        for (kept, &p) in nodes.iter_mut().zip(&frame.positions) {
+            keep(kept, p);
+        }
+        for (kept, leaf) in corners.chunks_exact_mut(4).zip(&frame.leaves) {
+            for (kept, p) in kept.iter_mut().zip(leaf.corners()) {
+                keep(kept, p);
+            }
         }
         self.has_previous = true;
         max2.sqrt()

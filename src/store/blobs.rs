@@ -170,6 +170,18 @@ impl Blobs {
         }
     }
 
+    /// Writes the local blob `key` back to the disk now, on the calling
+    /// thread (nothing on S3), so that the [`Blobs::sync`] that makes it
+    /// durable later finds it written; whether this succeeds does not
+    /// matter, since that sync reports any failure.
+    pub fn write_back_here(&self, key: &str) {
+        if let Ok(Some((paths, _))) = self.local_paths(&[key.to_owned()]) {
+            for path in paths {
+                let _ = std::fs::File::open(path).and_then(|f| f.sync_data());
+            }
+        }
+    }
+
     /// The files of `keys` and the store's root (`None` on S3 or when there
     /// is nothing to do).
     fn local_paths(
@@ -302,7 +314,13 @@ pub struct BlobWriter {
     partial: std::path::PathBuf,
     path: std::path::PathBuf,
     finished: bool,
+    /// Bytes appended since the last write-back was started.
+    unsynced: usize,
 }
+
+/// How many bytes a [`BlobWriter`] takes before it starts writing them
+/// back to the disk behind the job ([`BlobWriter::append`]).
+const WRITE_BACK_BYTES: usize = 4 << 20;
 
 impl Blobs {
     /// A writer of the blob `key` in parts ([`BlobWriter`]) on the local
@@ -328,15 +346,29 @@ impl Blobs {
             partial,
             path,
             finished: false,
+            unsynced: 0,
         }))
     }
 }
 
 impl BlobWriter {
-    /// Appends the next part.
+    /// Appends the next part. Every few megabytes it starts writing the
+    /// file back to the disk on a thread of its own, whose result does not
+    /// matter: the sync that makes the blob durable ([`Blobs::sync`])
+    /// then finds most of it written. A job's stream (17 MB on the
+    /// default job) was all written back by that sync, after the last
+    /// frame.
     pub fn append(&mut self, bytes: &[u8]) -> Result<(), BlobError> {
         use std::io::Write;
-        self.file.write_all(bytes).map_err(file_error)
+        self.file.write_all(bytes).map_err(file_error)?;
+        self.unsynced += bytes.len();
+        if self.unsynced >= WRITE_BACK_BYTES {
+            self.unsynced = 0;
+            if let Ok(file) = self.file.try_clone() {
+                std::thread::spawn(move || file.sync_data());
+            }
+        }
+        Ok(())
     }
 
     /// Ends the blob: it is visible whole at its key once this returns,

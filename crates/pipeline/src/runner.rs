@@ -123,10 +123,10 @@ impl Runner for PipelineRunner {
             sink.plan(bytes.to_vec()).map_err(stored)?;
             unpublished = false;
         }
-        let probes = &prepared.probed;
+        let kept = (&prepared.probed, &prepared.writers);
         let outcome = match (&prepared.plan, input.spec) {
-            (Planned::Morph(plan), JobSpec::Morph(m)) => run_morph(m, plan, probes, sink)?,
-            (Planned::Sketch(plan), JobSpec::Sketch(s)) => run_sketch(s, plan, probes, sink)?,
+            (Planned::Morph(plan), JobSpec::Morph(m)) => run_morph(m, plan, kept, sink)?,
+            (Planned::Sketch(plan), JobSpec::Sketch(s)) => run_sketch(s, plan, kept, sink)?,
             _ => return Err(JobError::internal("a kept plan of another kind of job")),
         };
         if unpublished {
@@ -404,7 +404,7 @@ fn analyse(input: &InputTree) -> Result<&Analysis, JobError> {
 fn run_morph(
     spec: &MorphSpec,
     plan: &MorphPlan,
-    probes: &OnceLock<Probed>,
+    kept: (&OnceLock<Probed>, &Writers),
     sink: &mut dyn JobSink,
 ) -> Result<JobOutcome, JobError> {
     let mut morpher = Morpher::new(plan);
@@ -413,7 +413,7 @@ fn run_morph(
     let mut crossings = CrossingMeter::new();
     let mut measure_error = None;
     let outcome = render(
-        (plan.topology(), probes),
+        (plan.topology(), kept),
         &spec.render,
         |t, frame| morpher.morph(t, frame),
         |frame| {
@@ -544,7 +544,7 @@ fn jump_ratio(max_jump: &[f32]) -> f32 {
 fn run_sketch(
     spec: &SketchSpec,
     plan: &SketchPlan,
-    probes: &OnceLock<Probed>,
+    kept: (&OnceLock<Probed>, &Writers),
     sink: &mut dyn JobSink,
 ) -> Result<JobOutcome, JobError> {
     let mut sketcher = Sketcher::new(plan);
@@ -552,7 +552,7 @@ fn run_sketch(
     let mut series = SketchSeries::with_capacity(spec.render.frames as usize, plan.height());
     let (mut crossings, mut jumps) = (CrossingMeter::new(), JumpMeter::default());
     let outcome = render(
-        (plan.topology(), probes),
+        (plan.topology(), kept),
         &spec.render,
         |t, frame| sketcher.deform(t, frame),
         |frame| {
@@ -751,10 +751,13 @@ struct NextGeometry {
 }
 
 impl OutputCheck {
+    /// The check of a job's frames, in `kept`'s context when a job of the
+    /// plan left one ([`Plausibility::start_sequence`]).
     fn new(
         topology: &FrameTopology,
         probed: &Probed,
         encoders: &Encoders,
+        kept: Option<Plausibility>,
     ) -> Result<OutputCheck, JobError> {
         let mesh = FrameGlbOptions::default().mesh;
         let own = (encoders.glb.is_none() && encoders.stream.is_none())
@@ -766,13 +769,11 @@ impl OutputCheck {
             leaves: MeshBuffers::default(),
             shape: mesh.leaf_shape,
         };
-        let mut check = Plausibility::new();
-        if let Some(meshes) = checked_meshes(encoders, own.as_ref()) {
-            check.set_hints(Hints::of_tubes(
-                topology,
-                &meshes.branches().vertex_owners(),
-            ));
-        }
+        let hints = checked_meshes(encoders, own.as_ref())
+            .map(|meshes| Hints::of_tubes(topology, &meshes.branches().vertex_owners()))
+            .unwrap_or_default();
+        let mut check = kept.unwrap_or_default();
+        check.start_sequence(hints);
         Ok(OutputCheck {
             checker: Checker {
                 check,
@@ -936,6 +937,9 @@ fn probe(eval: &mut impl FnMut(f32, &mut Frame), frame: &mut Frame) -> Probed {
 /// The encoders a job's outputs ask for.
 struct Encoders {
     stream: Option<DeltaStreamWriter>,
+    /// Whether `stream` was kept from a job of the plan and restarts after
+    /// its header before the first frame ([`Writers`]).
+    restart: bool,
     glb: Option<FrameGlbWriter>,
 }
 
@@ -979,16 +983,25 @@ impl Encoders {
         topology: &FrameTopology,
         render: &RenderSpec,
         probed: &Probed,
+        writers: &Writers,
     ) -> Result<(Encoders, Keyframes), JobError> {
         let outputs = &render.outputs;
-        let stream = outputs
-            .delta
-            .then(|| {
-                let options = StreamOptions::default().with_frame_count(render.frames);
-                DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
-            })
-            .transpose()
-            .map_err(encode)?;
+        let kept = writers
+            .job_stream
+            .take()
+            .filter(|(frames, _)| outputs.delta && *frames == render.frames);
+        let restart = kept.is_some();
+        let stream = match kept {
+            Some((_, writer)) => Some(writer),
+            None => outputs
+                .delta
+                .then(|| {
+                    let options = StreamOptions::default().with_frame_count(render.frames);
+                    DeltaStreamWriter::new(topology, &probed.radii, probed.bounds, &options)
+                })
+                .transpose()
+                .map_err(encode)?,
+        };
         let glb = outputs
             .glb
             .then(|| FrameGlbWriter::new(topology, &probed.radii, &FrameGlbOptions::default()))
@@ -1019,7 +1032,20 @@ impl Encoders {
             picks,
             ..Keyframes::default()
         };
-        Ok((Encoders { stream, glb }, keyframes))
+        let encoders = Encoders {
+            stream,
+            restart,
+            glb,
+        };
+        Ok((encoders, keyframes))
+    }
+
+    /// Keeps the stream writer of a job that ended well for the next job
+    /// of the plan with as many `frames` ([`Writers`]).
+    fn keep(self, frames: u32, writers: &Writers) {
+        if let Some(stream) = self.stream {
+            writers.job_stream.keep((frames, stream));
+        }
     }
 
     /// Encodes frame `i` as a stream record (into `record`; returns the
@@ -1035,12 +1061,16 @@ impl Encoders {
         record: &mut Vec<u8>,
     ) -> Result<(Option<usize>, Option<Vec<u8>>), JobError> {
         let (stream, glb) = (&mut self.stream, &mut self.glb);
+        let restart = std::mem::take(&mut self.restart);
         let (header, glb_bytes) = rayon::join(
             || -> Result<Option<usize>, EncodeError> {
                 let Some(stream) = stream else {
                     return Ok(None);
                 };
                 record.clear();
+                if restart {
+                    stream.restart(record)?;
+                }
                 stream.write_frame(frame, record)?;
                 Ok(Some(if i == 0 {
                     stream.header_bytes().map_or(0, <[u8]>::len)
@@ -1056,15 +1086,15 @@ impl Encoders {
     /// Publishes the whole-sequence files, the animated GLB from
     /// `keyframes`.
     fn finish(
-        self,
+        &mut self,
         whole_stream: WholeStream,
         keyframes: Keyframes,
         sink: &mut dyn JobSink,
     ) -> Result<(Vec<String>, Option<BasisReport>), JobError> {
         let mut files = Vec::new();
         let mut report = None;
-        if let Some(mut stream) = self.stream {
-            whole_stream.finish(&mut stream, sink)?;
+        if let Some(stream) = &mut self.stream {
+            whole_stream.finish(stream, sink)?;
             files.push("stream.tmd".into());
         }
         if let Some(builder) = keyframes.animated {
@@ -1095,7 +1125,7 @@ impl Encoders {
 /// took 8.5 ms a frame, and evaluating, constructing and encoding 12.6 ms
 /// one after the other.
 fn render<M: Send>(
-    (topology, probes): (&FrameTopology, &OnceLock<Probed>),
+    (topology, (probes, writers)): (&FrameTopology, (&OnceLock<Probed>, &Writers)),
     spec: &RenderSpec,
     mut eval: impl FnMut(f32, &mut Frame) + Send,
     mut construct: impl FnMut(&Frame) -> M + Send,
@@ -1105,10 +1135,10 @@ fn render<M: Send>(
     let frames = spec.frames;
     let mut frame = Frame::default();
     let probed = probes.get_or_init(|| probe(&mut eval, &mut frame));
-    let (mut encoders, mut keyframes) = Encoders::new(topology, spec, probed)?;
+    let (mut encoders, mut keyframes) = Encoders::new(topology, spec, probed, writers)?;
     let mut output_check = spec
         .measured
-        .then(|| OutputCheck::new(topology, probed, &encoders))
+        .then(|| OutputCheck::new(topology, probed, &encoders, writers.checker.take()))
         .transpose()?;
     let mut whole_stream = WholeStream::Unasked;
     let mut record = Vec::new();
@@ -1196,6 +1226,10 @@ fn render<M: Send>(
     }
     keyframes.add_waiting()?;
     let (files, animation) = encoders.finish(whole_stream, keyframes, sink)?;
+    encoders.keep(spec.frames, writers);
+    if let Some(check) = output_check {
+        writers.checker.keep(check.checker.check);
+    }
     Ok(Rendered {
         frames,
         files,

@@ -1075,3 +1075,40 @@ fn each_frames_measured_counts_are_those_of_its_own_glb() {
         "the counts differ between frames, so a shifted copy would show: {measured:?}"
     );
 }
+
+/// A job run again on one runner restarts the stream writer and the
+/// output check its last run of the same plan and frame count kept, and
+/// writes what a new runner writes: the same stream and metrics, also
+/// after a run of other frames took the kept writer and left its own.
+#[test]
+fn a_job_run_again_writes_what_a_new_runner_writes() {
+    let trees = morph_trees();
+    let run_on = |runner: &PipelineRunner, frames: u32| {
+        let request = morph_request(frames, Outputs::default());
+        let spec = JobSpec::parse(&request, &Limits::default()).unwrap();
+        let mut sink = MemorySink::default();
+        let input = JobInput {
+            spec: &spec,
+            trees: &trees,
+            stored_plan: None,
+        };
+        runner.run(&input, &mut sink).unwrap();
+        let plan = runner
+            .plans
+            .get(&spec, PlanOf::Trees(&spec_trees(&input).unwrap()));
+        let writers = &plan.expect("the plan is kept").writers;
+        assert!(writers.job_stream.holds() && writers.checker.holds());
+        (
+            sink.files["stream.tmd"].clone(),
+            sink.files["metrics.json"].clone(),
+        )
+    };
+    let new = |frames| run_on(&PipelineRunner::default(), frames);
+    let (five, four) = (new(5), new(4));
+    let runner = PipelineRunner::default();
+    for frames in [5, 5, 4, 5] {
+        let again = run_on(&runner, frames);
+        let expected = if frames == 5 { &five } else { &four };
+        assert!(again == *expected, "{frames} frames");
+    }
+}

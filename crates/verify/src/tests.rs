@@ -445,3 +445,49 @@ fn hints_right_or_wrong_leave_a_first_frames_report_as_it_is() {
         );
     }
 }
+
+/// A context that checked another sequence, then starts a new one with
+/// the writer's hints, reports that sequence's first frames as a new
+/// context does: kept proofs of other meshes or of the same meshes at
+/// another instant are forgotten, and kept labels are checked against
+/// the new index buffers.
+#[test]
+fn a_context_started_again_reports_as_a_new_one() {
+    let three = |n: usize| vec![0, n / 3, n - 1];
+    let (topology, frame, _) = maple_with_leaves_moved((2, 1_500), three, Vec3::X * 40.0);
+    let writer = written(&topology, &frame);
+    let hints = || Hints::of_tubes(&topology, &writer.meshes().branches().vertex_owners());
+    let view = MeshView::of_frame_meshes(writer.meshes());
+    let opts = PlausibilityOptions::default();
+    let mut fresh = Plausibility::new();
+    fresh.set_hints(hints());
+    let expected = fresh.check(&view, &opts).unwrap();
+    assert!(
+        expected.floating_leaves >= 3,
+        "{}",
+        expected.floating_leaves
+    );
+
+    // Another tree's frames, then this tree's with its leaves in place.
+    let other = Scene::trunk();
+    let (settled, settled_frame, _) =
+        maple_with_leaves_moved((2, 1_500), |_| Vec::new(), Vec3::ZERO);
+    let settled_writer = written(&settled, &settled_frame);
+    let mut kept = Plausibility::new();
+    kept.check(&other.view(), &opts).unwrap();
+    kept.start_sequence(hints());
+    assert_eq!(
+        kept.check(&view, &opts).unwrap(),
+        expected,
+        "after other meshes"
+    );
+    kept.start_sequence(hints());
+    let settled_view = MeshView::of_frame_meshes(settled_writer.meshes());
+    assert_eq!(kept.check(&settled_view, &opts).unwrap().floating_leaves, 0);
+    kept.start_sequence(hints());
+    assert_eq!(
+        kept.check(&view, &opts).unwrap(),
+        expected,
+        "after the same meshes"
+    );
+}

@@ -116,7 +116,8 @@ impl Prepared {
 /// frame count its header announces) and its output check's context
 /// (`checker`): the next job of the same plan and frame count restarts
 /// the stream after the same header, and checks with buffers already
-/// made and pieces already labelled. On the default job, making the
+/// made, pieces already labelled and the proofs of the same first frame
+/// to try first ([`Plausibility::start_sequence`]). On the default job, making the
 /// stream's meshers, blended textures and header took about 16 ms of its
 /// first frame, before any frame could follow (claimed → first frame
 /// computed: 30-35 ms before, 10-18 ms with the kept writer). Both hold

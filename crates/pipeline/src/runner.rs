@@ -720,8 +720,9 @@ impl WrittenSeries {
 /// ([`Checker::check`]). The copy goes to a second buffer while the check
 /// reads the first, and the two swap after each frame: the copy (the
 /// positions, 3.4 MB a frame on the default morph's 284,000 vertices; the
-/// indices only once, [`copy_geometry`]) is then part of the frame's parallel work, beside the construction
-/// metrics, instead of a serial step between frames.
+/// indices only once, [`copy_geometry`]) is then part of the frame's
+/// parallel work, beside the construction metrics, instead of a serial
+/// step between frames.
 struct OutputCheck {
     checker: Checker,
     next: NextGeometry,
@@ -986,10 +987,11 @@ impl Encoders {
         writers: &Writers,
     ) -> Result<(Encoders, Keyframes), JobError> {
         let outputs = &render.outputs;
-        let kept = writers
-            .job_stream
-            .take()
-            .filter(|(frames, _)| outputs.delta && *frames == render.frames);
+        let kept = outputs
+            .delta
+            .then(|| writers.job_stream.take())
+            .flatten()
+            .filter(|(frames, _)| *frames == render.frames);
         let restart = kept.is_some();
         let stream = match kept {
             Some((_, writer)) => Some(writer),
@@ -1111,7 +1113,9 @@ impl Encoders {
 /// Computes the spec's frames with `eval`, publishes them through `sink`
 /// in every requested format (with the plan's `probes`, sampled by its
 /// first job or render and kept with it: 8.7 ms of a repeated default
-/// job's start went to sampling them again), and measures each unless the spec is
+/// job's start went to sampling them again; and with the stream writer
+/// and check context a job of the plan kept in `writers`), and measures
+/// each unless the spec is
 /// [unmeasured](crate::JobSpec::unmeasured): `construct` right after the
 /// frame is computed (what its construction says), then `measure` with
 /// that and the output-level check of the frame as written. Frame `i`'s

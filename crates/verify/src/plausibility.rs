@@ -305,6 +305,11 @@ pub struct Plausibility {
     leaf_proof: Vec<(u32, u32)>,
     /// Where the shortcuts look when no proof is kept ([`Hints`]).
     hints: Hints,
+    /// The proofs (`leaf_proof`, `partner`) of the first frame of the last
+    /// sequence, and whether the next check starts a sequence
+    /// ([`Plausibility::start_sequence`]).
+    first_proofs: Option<Proofs>,
+    starting: bool,
     /// Per piece, the piece its hint names as the one it grows from
     /// (`u32::MAX`: none), for the labels above (`None`: not yet made).
     host_pieces: Option<Vec<u32>>,
@@ -483,6 +488,14 @@ struct OpenLeaf {
     allowed: f32,
 }
 
+/// What proved each leaf and piece attached in one frame (`leaf_proof`,
+/// `partner`).
+#[derive(Clone, Debug)]
+struct Proofs {
+    leaves: Vec<(u32, u32)>,
+    pieces: Vec<Partner>,
+}
+
 /// A proof that a piece comes within reach of another, kept between
 /// frames (indices into the branch mesh, stable while it is unchanged).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -596,10 +609,27 @@ impl Plausibility {
     /// the same meshes, the labelling of pieces (in a profile of the
     /// default job's first check, its triangle pass and the labelling
     /// took about 40 %). Reports are those of a new context.
+    ///
+    /// A sequence's first frame is often the last one's (a job run again:
+    /// frame 0 is the plan at t = 0). So the proofs found on the last
+    /// sequence's first frame are tried first on the next one's when its
+    /// meshes have the same index buffers, where they name the same
+    /// vertices and triangles; like any proof they are measured again.
     pub fn start_sequence(&mut self, hints: Hints) {
         self.leaf_proof.clear();
         self.partner.fill(Partner::None);
         self.set_hints(hints);
+        self.starting = true;
+    }
+
+    /// At a sequence's first frame, takes up the proofs of the last
+    /// sequence's first frame when the index buffers are those they were
+    /// found on (`same_meshes`).
+    fn resume_first_proofs(&mut self, same_meshes: bool) {
+        if let (true, Some(first)) = (same_meshes, &self.first_proofs) {
+            self.leaf_proof.clone_from(&first.leaves);
+            self.partner.clone_from(&first.pieces);
+        }
     }
 
     /// Checks one frame with a fresh context.
@@ -661,6 +691,10 @@ impl Plausibility {
             0.0
         };
 
+        let starting = std::mem::take(&mut self.starting) && !reference;
+        if starting {
+            self.resume_first_proofs(known_branches && known_leaves);
+        }
         self.label_pieces(meshes, known_branches);
         self.group_leaves(meshes, same_leaf_indices)?;
         self.collect_triangles(meshes);
@@ -694,6 +728,12 @@ impl Plausibility {
         };
         self.settle_leaves(meshes, options, found.leaves, reference, &mut report);
         self.settle_pieces(meshes, found.pieces, reach, reference, &mut report);
+        if starting {
+            self.first_proofs = Some(Proofs {
+                leaves: self.leaf_proof.clone(),
+                pieces: self.partner.clone(),
+            });
+        }
         Ok(report)
     }
 

@@ -364,8 +364,11 @@ impl BlobWriter {
         self.unsynced += bytes.len();
         if self.unsynced >= WRITE_BACK_BYTES {
             self.unsynced = 0;
+            // A thread that cannot start leaves the work to that sync.
             if let Ok(file) = self.file.try_clone() {
-                std::thread::spawn(move || file.sync_data());
+                let _ = std::thread::Builder::new()
+                    .name("write-back".into())
+                    .spawn(move || file.sync_data());
             }
         }
         Ok(())

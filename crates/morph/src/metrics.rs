@@ -112,8 +112,8 @@ fn leaf_within(
 /// they agree far closer than that).
 ///
 /// The leaves are sorted by a hash of their key, and only runs of one
-/// hash (almost always leaves with one key) are compared key by key:
-/// sorting the 80-byte keys themselves was most of this count's time.
+/// hash (almost always leaves with one key) are compared key by key,
+/// rather than every frame sorting the 80-byte keys themselves.
 fn coincident_leaves(plan: &MorphPlan, frame: &Frame) -> u32 {
     let scale = 1e6 / plan.height().max(f32::MIN_POSITIVE);
     let q = |x: f32, s: f32| (x * s).round() as i64;

@@ -255,8 +255,8 @@ impl JumpMeter {
         self.previous.resize(count, Vec3::ZERO);
         // Squared distances: the square root of the largest is the largest
         // root. The nodes, then each leaf's four corners (two rotations),
-        // in the order of `Frame::points`, in two plain loops: one
-        // iterator chaining both was about half as fast.
+        // in the order of `Frame::points`, in two plain loops rather than
+        // one iterator chaining both.
         let (nodes, corners) = self.previous.split_at_mut(frame.positions.len());
         let mut max2 = 0.0f32;
         let mut keep = |kept: &mut Vec3, p: Vec3| {

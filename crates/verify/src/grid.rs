@@ -202,7 +202,9 @@ impl TriangleGrid {
         // Each bucket's boxes are copied next to each other before they
         // are paired: pairing read them through the entries' indices, a
         // scattered load per pair, and the pairs are several times the
-        // entries (most of the crossing meter's time went to those loads).
+        // entries (pairing took about half of the crossing meter's time:
+        // 0.65-0.85 ms of a default morph's frame with a visitor that
+        // does nothing).
         let mut local: Vec<(Vec3A, Vec3A, u32)> = Vec::new();
         for bucket in 0..self.starts.len().saturating_sub(1) {
             let entries =

@@ -473,27 +473,18 @@ fn a_context_started_again_reports_as_a_new_one() {
     let (settled, settled_frame, _) =
         maple_with_leaves_moved((2, 1_500), |_| Vec::new(), Vec3::ZERO);
     let settled_writer = written(&settled, &settled_frame);
+    let settled_view = MeshView::of_frame_meshes(settled_writer.meshes());
     let mut kept = Plausibility::new();
     kept.check(&other.view(), &opts).unwrap();
-    kept.start_sequence(hints());
-    assert_eq!(
-        kept.check(&view, &opts).unwrap(),
-        expected,
-        "after other meshes"
-    );
-    kept.start_sequence(hints());
-    let settled_view = MeshView::of_frame_meshes(settled_writer.meshes());
-    assert_eq!(kept.check(&settled_view, &opts).unwrap().floating_leaves, 0);
-    kept.start_sequence(hints());
-    assert_eq!(
-        kept.check(&view, &opts).unwrap(),
-        expected,
-        "after the same meshes"
-    );
+    let mut first = |v: &MeshView<'_>| {
+        kept.start_sequence(hints());
+        kept.check(v, &opts).unwrap()
+    };
+    assert_eq!(first(&view), expected, "after other meshes");
+    assert_eq!(first(&settled_view).floating_leaves, 0);
+    assert_eq!(first(&view), expected, "after the same meshes");
     // The proofs of that first frame (three leaves without one) are taken
     // up by the next sequence's first frame, which has them all in place.
-    kept.start_sequence(hints());
-    assert_eq!(kept.check(&settled_view, &opts).unwrap().floating_leaves, 0);
-    kept.start_sequence(hints());
-    assert_eq!(kept.check(&view, &opts).unwrap(), expected, "again");
+    assert_eq!(first(&settled_view).floating_leaves, 0);
+    assert_eq!(first(&view), expected, "again");
 }

@@ -368,7 +368,7 @@ pub struct MorphJobOptions {
     pub animation: AnimationKind,
     /// Most joints of a `skinned` animation besides its root (default
     /// 256, what game engines play vegetation with; 0: one joint per
-    /// chain). Lighter chains merge into their parents first.
+    /// chain). Chains that move most nearly as their parent merge into it first.
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"
@@ -598,7 +598,7 @@ pub struct SketchJobOptions {
     pub animation: AnimationKind,
     /// Most joints of a `skinned` animation besides its root (default
     /// 256, what game engines play vegetation with; 0: one joint per
-    /// chain). Lighter chains merge into their parents first.
+    /// chain). Chains that move most nearly as their parent merge into it first.
     #[serde(
         skip_serializing_if = "Option::is_none",
         deserialize_with = "crate::int::opt_u32"

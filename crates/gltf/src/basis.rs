@@ -614,12 +614,11 @@ impl BasisGlbBuilder {
             displacements: &self.displacements,
             normal_changes: &self.normal_changes,
         };
-        let profiles = skin::strand_profiles(self.topology.strands.len(), &owners, &samples);
         let rig = skin::Rig::new(
             &self.topology,
             &owners,
             (base.per_leaf, leaf_vertices),
-            &profiles,
+            &samples,
             self.options.skeleton_joints,
         );
         if rig.joint_count() > usize::from(u16::MAX) {

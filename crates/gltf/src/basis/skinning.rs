@@ -78,7 +78,7 @@ pub(crate) fn rig_up(
         normal_changes: &nd,
     };
     let members = rig.members();
-    let binds = skin::bind_samples(&members, &samples);
+    let binds = skin::bind_samples(&rig.anchors, &samples);
     let (bind, bind_normals): (Vec<Vec3>, Vec<Vec3>) = rig
         .vertex_joint
         .iter()
@@ -92,7 +92,7 @@ pub(crate) fn rig_up(
         })
         .unzip();
     set_pose(base, bind, bind_normals, grid)?;
-    let fits = skin::fit_joints(&members, &base.positions, &samples);
+    let fits = skin::fit_joints(&rig.anchors, &base.positions, &samples);
     let origins = origins(&rig, &members, owners, &base.positions);
     let (r, rn) = skin::residuals(&rig, &fits, &base.positions, &base.normals, &samples);
     *displacements = r;

@@ -5,10 +5,10 @@
 //! - **Joints.** Every strand (chain) of the topology starts as a joint,
 //!   child of the joint of the strand it branches from. While there are
 //!   more than the cap, the joint whose parent's motion carries it best
-//!   merges into its parent (bottom-up, so a joint holds a connected
-//!   piece of the hierarchy). What a merge costs is measured on the
-//!   samples: the farthest any of the joint's vertices, at any sample,
-//!   is from where its parent joint's motion carries it ([`merge`]). A
+//!   merges into its parent (a joint always holds a connected piece of
+//!   the hierarchy). What a merge costs is measured on the samples: the
+//!   farthest any of the joint's vertices, at any sample, is from where
+//!   its parent joint's motion carries it ([`merge`]). A
 //!   twig that turns with its branch merges early, whatever its size; a
 //!   strand that wilts while its parent grows, or swings its own way,
 //!   keeps its joint. Merging the lightest joints first instead (what
@@ -108,33 +108,35 @@ impl Rig {
         for s in vertex_strand.iter().flatten() {
             weights[*s as usize] += 1;
         }
-        let motion = StrandMotion::of(
-            strand_members(&vertex_strand, strands),
-            strand_members(&vertex_strand[..owners.len()], strands),
-            samples,
-        );
-        let top = merge(&parents, &weights, |s, t| motion.error(samples, s, t), cap);
+        let members = strand_members(&vertex_strand, strands);
+        let anchors = strand_anchors(&members, &vertex_strand[..owners.len()]);
+        let with_vertices = weights.iter().filter(|&&w| w > 0).count();
+        let top = if cap == 0 || with_vertices <= cap {
+            // Only the joints without vertices merge: no cost to measure.
+            merge(&parents, &weights, |_, _| 0.0, cap)
+        } else {
+            let motion = StrandMotion::of(&members, &anchors, samples);
+            merge(&parents, &weights, |s, t| motion.error(samples, s, t), cap)
+        };
         let (joint_of, joint_parents, top_strands) = order_joints(&parents, &top, &weights);
-        let vertex_joint = vertex_strand
+        let vertex_joint: Vec<u32> = vertex_strand
             .iter()
             .map(|s| s.map_or(0, |s| joint_of[top[s as usize] as usize] as u32))
             .collect();
-        let mut rig = Rig {
-            vertex_joint,
-            parents: joint_parents,
-            top_strands,
-            anchors: Vec::new(),
-        };
-        rig.anchors = rig
-            .members()
+        let anchors = joint_members(&vertex_joint, joint_parents.len())
             .into_iter()
-            .zip(&rig.top_strands)
+            .zip(&top_strands)
             .map(|(all, top)| match top {
-                Some(s) if !motion.bark[*s as usize].is_empty() => motion.bark[*s as usize].clone(),
+                Some(s) if !anchors[*s as usize].is_empty() => anchors[*s as usize].clone(),
                 _ => all,
             })
             .collect();
-        rig
+        Rig {
+            vertex_joint,
+            parents: joint_parents,
+            top_strands,
+            anchors,
+        }
     }
 
     pub(crate) fn joint_count(&self) -> usize {
@@ -143,11 +145,7 @@ impl Rig {
 
     /// Each joint's vertices.
     pub(crate) fn members(&self) -> Vec<Vec<u32>> {
-        let mut out = vec![Vec::new(); self.joint_count()];
-        for (v, &j) in self.vertex_joint.iter().enumerate() {
-            out[j as usize].push(v as u32);
-        }
-        out
+        joint_members(&self.vertex_joint, self.joint_count())
     }
 }
 
@@ -155,125 +153,174 @@ impl Rig {
 /// joints into their parents until at most `cap` with vertices remain
 /// (0: no cap). Merging a joint into its parent costs `error(s, t)` of
 /// its worst strand `s`, `t` the parent joint's top strand; joints
-/// without vertices always merge.
+/// without vertices cost nothing, so they merge first.
 fn merge(
     parents: &[Option<u32>],
     weights: &[u64],
     error: impl Fn(usize, usize) -> f32 + Sync,
     cap: usize,
 ) -> Vec<u32> {
-    let n = parents.len();
-    // Every joint's first cost at once: most are never measured again.
-    let known = (0..n)
-        .into_par_iter()
-        .map(|s| match parents[s] {
-            Some(p) if weights[s] > 0 => Some((p as usize, error(s, p as usize))),
-            _ => None,
-        })
-        .collect();
-    let mut groups = Groups {
-        top: (0..n as u32).collect(),
-        strands: (0..n as u32).map(|s| vec![s]).collect(),
-        weight: weights.to_vec(),
-        known,
-    };
-    let mut heap: BinaryHeap<Reverse<(u32, u32)>> = BinaryHeap::new();
-    for s in (0..n).filter(|&s| parents[s].is_some()) {
-        let c = groups.cost(parents, &error, s);
-        heap.push(Reverse((c.to_bits(), s as u32)));
-    }
+    let mut m = Merging::new(parents, weights, &error);
     let mut count = weights.iter().filter(|&&w| w > 0).count();
-    while let Some(Reverse((c, s))) = heap.pop() {
+    while let Some(Reverse((c, s))) = m.heap.pop() {
         let s = s as usize;
-        if groups.top[s] != s as u32 {
+        if m.top[s] != s as u32 {
             continue;
         }
-        let now = groups.cost(parents, &error, s).to_bits();
+        let now = m.cost(s).to_bits();
         if now != c {
-            heap.push(Reverse((now, s as u32)));
+            m.heap.push(Reverse((now, s as u32)));
             continue;
         }
-        let w = groups.weight[s];
+        let w = m.weight[s];
         if w > 0 && (cap == 0 || count <= cap) {
             break;
         }
         let Some(parent) = parents[s] else { continue };
-        let into = find(&mut groups.top, parent as usize);
-        if w > 0 && groups.weight[into] > 0 {
+        let into = find(&mut m.top, parent as usize);
+        if w > 0 && m.weight[into] > 0 {
             count -= 1;
         }
-        groups.join(parents, &error, s, into);
-        if parents[into].is_some() {
-            let c = groups.cost(parents, &error, into);
-            heap.push(Reverse((c.to_bits(), into as u32)));
-        }
+        m.join(s, into);
     }
-    (0..n).map(|s| find(&mut groups.top, s) as u32).collect()
+    (0..parents.len())
+        .map(|s| find(&mut m.top, s) as u32)
+        .collect()
 }
 
-/// The joints while they merge: per top strand, its strands, vertex
-/// count and the cost last found of merging it into a parent joint.
-struct Groups {
+/// The joints while they merge, each named by its top strand: its
+/// strands, vertex count, child joints and the cost last measured of
+/// merging it into its parent joint; the heap of those costs
+/// (`f32` bits, which order as the non-negative costs do).
+struct Merging<'a, E> {
+    parents: &'a [Option<u32>],
+    error: &'a E,
     top: Vec<u32>,
     strands: Vec<Vec<u32>>,
     weight: Vec<u64>,
-    /// Per top strand: (the parent joint's top strand, cost) last found.
-    known: Vec<Option<(usize, f32)>>,
+    children: Vec<Vec<u32>>,
+    /// Per top strand: the parent joint's top strand and the cost, as
+    /// last measured.
+    cached_cost: Vec<Option<(usize, f32)>>,
+    heap: BinaryHeap<Reverse<(u32, u32)>>,
 }
 
-impl Groups {
+impl<'a, E: Fn(usize, usize) -> f32 + Sync> Merging<'a, E> {
+    /// One joint per strand, each strand's cost measured (in parallel:
+    /// the merges that follow measure only the joints they change).
+    fn new(parents: &'a [Option<u32>], weights: &[u64], error: &'a E) -> Self {
+        let n = parents.len();
+        let cached_cost = (0..n)
+            .into_par_iter()
+            .map(|s| match parents[s] {
+                Some(p) if weights[s] > 0 => Some((p as usize, error(s, p as usize))),
+                _ => None,
+            })
+            .collect();
+        let mut children = vec![Vec::new(); n];
+        for (s, p) in parents.iter().enumerate() {
+            if let Some(p) = p {
+                children[*p as usize].push(s as u32);
+            }
+        }
+        let mut m = Merging {
+            parents,
+            error,
+            top: (0..n as u32).collect(),
+            strands: (0..n as u32).map(|s| vec![s]).collect(),
+            weight: weights.to_vec(),
+            children,
+            cached_cost,
+            heap: BinaryHeap::new(),
+        };
+        for s in (0..n).filter(|&s| parents[s].is_some()) {
+            m.push(s);
+        }
+        m
+    }
+
+    /// Queues the joint of top strand `s` at its cost now.
+    fn push(&mut self, s: usize) {
+        let c = self.cost(s);
+        debug_assert!(c >= 0.0, "a merge cost is a distance: {c}");
+        self.heap.push(Reverse((c.to_bits(), s as u32)));
+    }
+
     /// What merging the joint of top strand `s` into its parent joint costs.
-    fn cost(
-        &mut self,
-        parents: &[Option<u32>],
-        error: &impl Fn(usize, usize) -> f32,
-        s: usize,
-    ) -> f32 {
-        let Some(parent) = parents[s] else {
+    fn cost(&mut self, s: usize) -> f32 {
+        let Some(parent) = self.parents[s] else {
             return f32::INFINITY;
         };
         if self.weight[s] == 0 {
             return 0.0;
         }
         let into = find(&mut self.top, parent as usize);
-        if let Some((i, c)) = self.known[s]
+        if let Some((i, c)) = self.cached_cost[s]
             && i == into
         {
             return c;
         }
         let c = self.strands[s]
             .iter()
-            .map(|&x| error(x as usize, into))
+            .map(|&x| (self.error)(x as usize, into))
             .fold(0.0, f32::max);
-        self.known[s] = Some((into, c));
+        self.cached_cost[s] = Some((into, c));
         c
     }
 
-    /// Merges the joint of top strand `s` into that of `into`, keeping
-    /// `into`'s known cost up to date where it stays valid.
-    fn join(
-        &mut self,
-        parents: &[Option<u32>],
-        error: &impl Fn(usize, usize) -> f32,
-        s: usize,
-        into: usize,
-    ) {
+    /// Merges the joint of top strand `s` into that of `into`. `into`'s
+    /// cached cost grows by the moved strands' where its parent joint
+    /// stays; `s`'s child joints, now `into`'s, are measured against it
+    /// and queued again (their queued costs were against `s`).
+    fn join(&mut self, s: usize, into: usize) {
         self.top[s] = into as u32;
         let moved = std::mem::take(&mut self.strands[s]);
-        if let Some(above) = parents[into]
-            && let Some((i, c)) = self.known[into]
+        if let Some(above) = self.parents[into]
+            && let Some((i, c)) = self.cached_cost[into]
             && i == find(&mut self.top, above as usize)
         {
             let more = moved
                 .iter()
-                .map(|&x| error(x as usize, i))
+                .map(|&x| (self.error)(x as usize, i))
                 .fold(0.0, f32::max);
-            self.known[into] = Some((i, c.max(more)));
+            self.cached_cost[into] = Some((i, c.max(more)));
         }
         self.strands[into].extend(moved);
         self.weight[into] += self.weight[s];
         self.weight[s] = 0;
+        let children = std::mem::take(&mut self.children[s]);
+        for &c in &children {
+            if self.top[c as usize] == c {
+                self.push(c as usize);
+            }
+        }
+        self.children[into].extend(children);
+        if self.parents[into].is_some() {
+            self.push(into);
+        }
     }
+}
+
+/// Each of `joints` joints' vertices, by `vertex_joint`.
+fn joint_members(vertex_joint: &[u32], joints: usize) -> Vec<Vec<u32>> {
+    let mut out = vec![Vec::new(); joints];
+    for (v, &j) in vertex_joint.iter().enumerate() {
+        out[j as usize].push(v as u32);
+    }
+    out
+}
+
+/// Per strand, the vertices its motion follows: its bark (the vertices
+/// `bark_strand` names), else its `members` (a strand of leaves only).
+/// The leaves stay out where there is bark: they unfold after their twig
+/// has grown, and while folded they would pull a growing twig's scale to
+/// nothing.
+fn strand_anchors(members: &[Vec<u32>], bark_strand: &[Option<u32>]) -> Vec<Vec<u32>> {
+    let bark = strand_members(bark_strand, members.len());
+    bark.into_iter()
+        .zip(members)
+        .map(|(b, m)| if b.is_empty() { m.clone() } else { b })
+        .collect()
 }
 
 /// Each strand's vertices (`vertex_strand`'s indices).
@@ -287,36 +334,28 @@ fn strand_members(vertex_strand: &[Option<u32>], strands: usize) -> Vec<Vec<u32>
     members
 }
 
-/// Each strand's own motion: the similarity that carries its bark from
-/// the sample where the bark spreads widest to each sample. The leaves
-/// stay out of the fit: they unfold after their twig has grown, and
-/// while folded they would pull a growing twig's scale to nothing.
-struct StrandMotion {
-    members: Vec<Vec<u32>>,
-    bark: Vec<Vec<u32>>,
+/// Each strand's own motion: the similarity that carries its anchors
+/// ([`strand_anchors`]) from the sample where they spread widest to each
+/// sample, as [`Rig`] moves a joint with that strand at its top.
+struct StrandMotion<'a> {
+    members: &'a [Vec<u32>],
     binds: Vec<usize>,
     fits: Vec<Vec<Similarity>>,
 }
 
-impl StrandMotion {
-    /// The motion of strands of `members` vertices, `bark` of them bark.
-    fn of(members: Vec<Vec<u32>>, bark: Vec<Vec<u32>>, samples: &Samples) -> Self {
-        let anchors: Vec<Vec<u32>> = bark
-            .iter()
-            .zip(&members)
-            .map(|(b, m)| if b.is_empty() { m.clone() } else { b.clone() })
-            .collect();
-        let binds = bind_samples(&anchors, samples);
+impl<'a> StrandMotion<'a> {
+    /// The motion of strands of `members` vertices that follow `anchors`.
+    fn of(members: &'a [Vec<u32>], anchors: &[Vec<u32>], samples: &Samples) -> Self {
+        let binds = bind_samples(anchors, samples);
         let mut bind = vec![Vec3::ZERO; samples.base.len()];
         for (vs, &f) in anchors.iter().zip(&binds) {
             for &v in vs {
                 bind[v as usize] = samples.position(f, v as usize);
             }
         }
-        let fits = fit_joints(&anchors, &bind, samples);
+        let fits = fit_joints(anchors, &bind, samples);
         StrandMotion {
             members,
-            bark,
             binds,
             fits,
         }
@@ -462,9 +501,10 @@ impl Samples<'_> {
     }
 }
 
-/// Each joint's bind sample: where its vertices are spread widest.
-pub(crate) fn bind_samples(members: &[Vec<u32>], samples: &Samples) -> Vec<usize> {
-    members
+/// Each joint's bind sample: where the vertices it follows (`anchors`,
+/// per joint) are spread widest.
+pub(crate) fn bind_samples(anchors: &[Vec<u32>], samples: &Samples) -> Vec<usize> {
+    anchors
         .par_iter()
         .map(|vs| {
             (0..samples.count())
@@ -492,13 +532,14 @@ fn spread(points: impl Iterator<Item = Vec3> + Clone) -> f64 {
 }
 
 /// Each joint's similarity at each sample (`[joint][sample]`), carrying
-/// its vertices' `bind` positions to the samples' as closely as any does.
+/// the `bind` positions of the vertices it follows (`anchors`, per joint)
+/// to the samples' as closely as any does.
 pub(crate) fn fit_joints(
-    members: &[Vec<u32>],
+    anchors: &[Vec<u32>],
     bind: &[Vec3],
     samples: &Samples,
 ) -> Vec<Vec<Similarity>> {
-    members
+    anchors
         .par_iter()
         .map(|vs| {
             let p: Vec<DVec3> = vs.iter().map(|&v| bind[v as usize].as_dvec3()).collect();

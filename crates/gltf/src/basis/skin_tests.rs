@@ -4,8 +4,8 @@ use super::*;
 
 /// A merge cost where strand `s` bound to strand `t`'s joint is off by
 /// `apart[s]`, whichever `t` (the cost of a joint is its worst strand's).
-fn apart(apart: &[f32]) -> impl Fn(usize, usize) -> f32 + '_ {
-    |s, _| apart[s]
+fn apart(off: &[f32]) -> impl Fn(usize, usize) -> f32 + Sync + '_ {
+    |s, _| off[s]
 }
 
 #[test]
@@ -48,6 +48,22 @@ fn a_merged_joint_costs_what_its_worst_strand_costs() {
         _ => 0.5,
     };
     assert_eq!(merge(&parents, &[1, 1, 1, 1], error, 2), vec![0, 1, 1, 0]);
+}
+
+#[test]
+fn a_joint_whose_parent_merged_is_measured_against_its_new_parent() {
+    // 0 ─┬─ 1 ─ 2
+    //    └─ 3
+    // Once 1 is in 0's joint, 2 costs 0.1 there (0.9 against 1's):
+    // cheaper than 3.
+    let parents = [None, Some(0), Some(1), Some(0)];
+    let error = |s: usize, t: usize| match (s, t) {
+        (1, _) => 0.05,
+        (2, 1) => 0.9,
+        (2, _) => 0.1,
+        _ => 0.5,
+    };
+    assert_eq!(merge(&parents, &[1, 1, 1, 1], error, 2), vec![0, 0, 0, 3]);
 }
 
 #[test]
@@ -160,7 +176,7 @@ fn a_strand_bound_to_its_parent_is_off_by_how_far_it_turns_away() {
         let (base, columns) = two_strands(|f| turn * f as f64 / 2.0);
         let members: Vec<Vec<u32>> = vec![(0..10).collect(), (10..20).collect()];
         with_samples(&base, &columns, |samples| {
-            let motion = StrandMotion::of(members.clone(), members, samples);
+            let motion = StrandMotion::of(&members, &members, samples);
             let error = motion.error(samples, 1, 0);
             assert!((f64::from(error) - off).abs() < 1e-4, "{error} {off}");
             assert!(motion.error(samples, 1, 1) < 1e-4);
@@ -206,7 +222,7 @@ fn a_strand_that_wilts_while_its_parent_grows_keeps_its_joint() {
     // height off) than at 256 (5.9 %).
     let (base, columns, members) = grow_and_wilt();
     with_samples(&base, &columns, |samples| {
-        let motion = StrandMotion::of(members.clone(), members, samples);
+        let motion = StrandMotion::of(&members, &members, samples);
         assert!(motion.error(samples, 1, 0) < 1e-4);
         assert!(motion.error(samples, 2, 0) > 0.1);
         let parents = [None, Some(0), Some(0)];

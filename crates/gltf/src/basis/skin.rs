@@ -8,10 +8,10 @@
 //!   merges into its parent (a joint always holds a connected piece of
 //!   the hierarchy). What a merge costs is measured on the samples: the
 //!   farthest any of the joint's vertices, at any sample, is from where
-//!   its parent joint's motion carries it ([`merge`]). A
-//!   twig that turns with its branch merges early, whatever its size; a
-//!   strand that wilts while its parent grows, or swings its own way,
-//!   keeps its joint. Merging the lightest joints first instead (what
+//!   its parent joint's motion carries it ([`merge`]). A twig that turns
+//!   with its branch merges early, whatever its size; a strand that
+//!   wilts while its parent grows, or swings its own way, keeps its
+//!   joint. Merging the lightest joints first instead (what
 //!   this did before) merged such strands at the cost of their full
 //!   extent: on the default morph, 1,024 joints were then 16.5 % of the
 //!   height off, worse than 256. Strands without geometry never get a
@@ -75,8 +75,10 @@ pub(crate) struct Rig {
     pub(crate) parents: Vec<Option<usize>>,
     /// Per joint: the strand at its top (none for the root).
     pub(crate) top_strands: Vec<Option<u32>>,
-    /// Per joint: the vertices its motion follows, its top strand's bark
-    /// (else all its vertices).
+    /// Per joint: the vertices its motion follows, its top strand's
+    /// ([`strand_anchors`]: its bark, else its leaves); all the joint's
+    /// vertices where the top strand has none (the still root, or a top
+    /// strand without geometry).
     pub(crate) anchors: Vec<Vec<u32>>,
 }
 

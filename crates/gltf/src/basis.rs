@@ -266,6 +266,7 @@ pub struct BasisGlbBuilder {
 
 /// The first frame as the file stores it, and what the document needs of
 /// the meshes besides positions.
+#[derive(Clone)]
 struct BasePose {
     /// Positions and normals as a player reads them back (dequantised for
     /// the quantised encodings): displacements are taken from these.
@@ -511,20 +512,13 @@ impl BasisGlbBuilder {
             )));
         }
         let mut base = self.base.take().expect("a pushed frame sets the base");
-        let skin = self.rig_up(&mut base)?;
-        let budget = if skin.is_some() {
-            SKIN_ERROR_BUDGET
+        let (skin, targets, report) = if self.skinned {
+            let (skin, targets, report) = self.skinned_fit(&mut base)?;
+            (Some(skin), targets, report)
         } else {
-            ERROR_BUDGET
+            let (targets, report) = self.fit(ERROR_BUDGET, None, &base.normals);
+            (None, targets, report)
         };
-        let (targets, mut report) =
-            self.fit(budget, skin.as_ref().map(|s| (s, &base)), &base.normals);
-        if let Some(skin) = &skin {
-            let error = skin.max_error(&base, &targets);
-            report.max_error = error / report.height;
-            report.within_budget = error <= budget * report.height;
-            report.joints = skin.rig.joint_count() - 1;
-        }
         let encoding = self.options.encoding;
         let mut w = Writer::new(encoding);
         let bark_looks = self.write_materials(&mut w.doc);
@@ -600,12 +594,35 @@ impl BasisGlbBuilder {
         Ok((doc, root, report))
     }
 
-    /// For a skinned animation, the skeleton, with the base pose made the
-    /// bind pose and the samples the residual the skeleton leaves.
-    fn rig_up(&mut self, base: &mut BasePose) -> Result<Option<skinning::Skin>, EncodeError> {
-        if !self.skinned {
-            return Ok(None);
+    /// A skinned animation's skeleton, with the base pose made the bind
+    /// pose, its residual targets and its report: of the two ways of
+    /// choosing the joints' bind samples ([`skin::Bind`]), the one whose
+    /// file a player shows nearer the samples (the first alone when it is
+    /// within budget).
+    fn skinned_fit(
+        &mut self,
+        base: &mut BasePose,
+    ) -> Result<(skinning::Skin, Targets, BasisReport), EncodeError> {
+        let rig = self.rig(base)?;
+        let unbound = base.clone();
+        let mut first = self.bind_and_fit(base, rig.clone(), skin::Bind::Bark)?;
+        if first.2.within_budget {
+            return Ok(first);
         }
+        (self.displacements, self.normal_changes) = first.0.take_samples();
+        let mut other = unbound;
+        let mut second = self.bind_and_fit(&mut other, rig, skin::Bind::Open)?;
+        if second.2.max_error < first.2.max_error {
+            *base = other;
+            Ok(second)
+        } else {
+            first.0.put_samples(second.0.take_samples());
+            Ok(first)
+        }
+    }
+
+    /// The skeleton of the samples.
+    fn rig(&self, base: &BasePose) -> Result<skin::Rig, EncodeError> {
         let owners = self.meshes.branches().vertex_owners();
         let leaf_vertices = base.positions.len() - base.branch_vertices;
         let samples = skin::Samples {
@@ -627,15 +644,32 @@ impl BasisGlbBuilder {
                 rig.joint_count()
             )));
         }
-        skinning::rig_up(
+        Ok(rig)
+    }
+
+    /// `rig` bound as `bind` chooses, with the base pose made the bind
+    /// pose, the residual's targets and the error a player shows (the
+    /// samples go into the skin).
+    fn bind_and_fit(
+        &mut self,
+        base: &mut BasePose,
+        rig: skin::Rig,
+        bind: skin::Bind,
+    ) -> Result<(skinning::Skin, Targets, BasisReport), EncodeError> {
+        let owners = self.meshes.branches().vertex_owners();
+        let skin = skinning::rig_up(
             base,
-            &mut self.displacements,
-            &mut self.normal_changes,
+            (&mut self.displacements, &mut self.normal_changes),
             &owners,
-            rig,
+            (rig, bind),
             self.grid,
-        )
-        .map(Some)
+        )?;
+        let (targets, mut report) = self.fit(SKIN_ERROR_BUDGET, Some((&skin, base)), &base.normals);
+        let error = skin.max_error(base, &targets);
+        report.max_error = error / report.height;
+        report.within_budget = error <= SKIN_ERROR_BUDGET * report.height;
+        report.joints = skin.rig.joint_count() - 1;
+        Ok((skin, targets, report))
     }
 
     /// The principal displacements, cut to the fewest that keep within

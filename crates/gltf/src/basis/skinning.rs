@@ -18,7 +18,7 @@ use serde_json::{Value, json};
 use treemorph_tree::NodeId;
 
 use super::motion::{Columns, Principal};
-use super::skin::{self, Poses, Rig, Samples};
+use super::skin::{self, Bind, Poses, Rig, Samples};
 use super::{BasePose, StoredTarget, Targets, quantised_target};
 use crate::animated::{Attr, Writer, f32_bytes, quantise, quantise_normal};
 use crate::doc::{Data, Doc};
@@ -57,14 +57,14 @@ pub(crate) struct Skin {
     normal_changes: Columns,
 }
 
-/// Replaces `base` by the bind pose and `displacements`/`normal_changes`
-/// by the residual in the joints' frames; returns the skeleton.
+/// Replaces `base` by the bind pose (each joint bound as `choice` says)
+/// and `displacements`/`normal_changes` by the residual in the joints'
+/// frames; returns the skeleton.
 pub(crate) fn rig_up(
     base: &mut BasePose,
-    displacements: &mut Columns,
-    normal_changes: &mut Columns,
+    (displacements, normal_changes): (&mut Columns, &mut Columns),
     owners: &[(u32, NodeId)],
-    rig: Rig,
+    (rig, choice): (Rig, Bind),
     grid: Option<(Vec3, f32)>,
 ) -> Result<Skin, EncodeError> {
     let first = std::mem::take(&mut base.positions);
@@ -78,7 +78,7 @@ pub(crate) fn rig_up(
         normal_changes: &nd,
     };
     let members = rig.members();
-    let binds = skin::bind_samples(&rig.anchors, &samples);
+    let binds = skin::bind_samples_by(choice, &rig.anchors, &members, &samples);
     let (bind, bind_normals): (Vec<Vec3>, Vec<Vec3>) = rig
         .vertex_joint
         .iter()
@@ -230,6 +230,22 @@ impl Skin {
     /// The first sample's vertex positions, as meshed.
     pub(crate) fn first_positions(&self) -> &[Vec3] {
         &self.first
+    }
+
+    /// Hands over the samples' columns (displacements, normal changes),
+    /// for another rig of the same samples; the skeleton measures no
+    /// error until they are back ([`Skin::put_samples`]).
+    pub(crate) fn take_samples(&mut self) -> (Columns, Columns) {
+        (
+            std::mem::take(&mut self.displacements),
+            std::mem::take(&mut self.normal_changes),
+        )
+    }
+
+    /// Takes back the columns [`Skin::take_samples`] handed over.
+    pub(crate) fn put_samples(&mut self, (displacements, normal_changes): (Columns, Columns)) {
+        self.displacements = displacements;
+        self.normal_changes = normal_changes;
     }
 
     /// The samples as meshed.

@@ -262,6 +262,12 @@ pub struct BasisGlbBuilder {
     max_samples: usize,
     /// Whether the motion goes to a skeleton first ([`BasisGlbBuilder::skinned`]).
     skinned: bool,
+    /// Tests: bind this way alone instead of trying both.
+    #[cfg(test)]
+    only_bind: Option<skin::Bind>,
+    /// Tests: a skinned error budget instead of [`SKIN_ERROR_BUDGET`].
+    #[cfg(test)]
+    skin_budget: Option<f32>,
 }
 
 /// The first frame as the file stores it, and what the document needs of
@@ -323,6 +329,10 @@ impl BasisGlbBuilder {
             heights: 0.0,
             max_samples,
             skinned: false,
+            #[cfg(test)]
+            only_bind: None,
+            #[cfg(test)]
+            skin_budget: None,
         })
     }
 
@@ -598,12 +608,16 @@ impl BasisGlbBuilder {
     /// pose, its residual targets and its report: of the two ways of
     /// choosing the joints' bind samples ([`skin::Bind`]), the one whose
     /// file a player shows nearer the samples (the first alone when it is
-    /// within budget).
+    /// within budget). Both rigs share the joints.
     fn skinned_fit(
         &mut self,
         base: &mut BasePose,
     ) -> Result<(skinning::Skin, Targets, BasisReport), EncodeError> {
         let rig = self.rig(base)?;
+        #[cfg(test)]
+        if let Some(bind) = self.only_bind {
+            return self.bind_and_fit(base, rig, bind);
+        }
         let unbound = base.clone();
         let mut first = self.bind_and_fit(base, rig.clone(), skin::Bind::Bark)?;
         if first.2.within_budget {
@@ -611,14 +625,30 @@ impl BasisGlbBuilder {
         }
         (self.displacements, self.normal_changes) = first.0.take_samples();
         let mut other = unbound;
-        let mut second = self.bind_and_fit(&mut other, rig, skin::Bind::Open)?;
-        if second.2.max_error < first.2.max_error {
-            *base = other;
-            Ok(second)
-        } else {
-            first.0.put_samples(second.0.take_samples());
-            Ok(first)
+        // The first rig is a whole file already: a second that cannot be
+        // made (it binds at other samples, so its pose could fall outside
+        // the quantisation grid) leaves it.
+        match self.bind_and_fit(&mut other, rig, skin::Bind::Open) {
+            Ok(second) if second.2.max_error < first.2.max_error => {
+                *base = other;
+                Ok(second)
+            }
+            Ok(mut second) => {
+                first.0.put_samples(second.0.take_samples());
+                Ok(first)
+            }
+            Err(_) => Ok(first),
         }
+    }
+
+    /// The largest vertex error a skinned animation aims for, as a
+    /// fraction of the height.
+    fn skin_budget(&self) -> f32 {
+        #[cfg(test)]
+        if let Some(budget) = self.skin_budget {
+            return budget;
+        }
+        SKIN_ERROR_BUDGET
     }
 
     /// The skeleton of the samples.
@@ -664,10 +694,11 @@ impl BasisGlbBuilder {
             (rig, bind),
             self.grid,
         )?;
-        let (targets, mut report) = self.fit(SKIN_ERROR_BUDGET, Some((&skin, base)), &base.normals);
+        let budget = self.skin_budget();
+        let (targets, mut report) = self.fit(budget, Some((&skin, base)), &base.normals);
         let error = skin.max_error(base, &targets);
         report.max_error = error / report.height;
-        report.within_budget = error <= SKIN_ERROR_BUDGET * report.height;
+        report.within_budget = error <= budget * report.height;
         report.joints = skin.rig.joint_count() - 1;
         Ok((skin, targets, report))
     }

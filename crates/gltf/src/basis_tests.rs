@@ -510,18 +510,7 @@ fn threejs_plays_the_animation_as_written_basis() {
 }
 
 fn build_skinned(sway: &Sway, options: &AnimatedOptions) -> (Vec<u8>, BasisReport) {
-    let mut b = BasisGlbBuilder::new(
-        sway.topology(),
-        sway.reference_radii(),
-        sway.bounds(),
-        options,
-    )
-    .unwrap()
-    .skinned();
-    for i in 0..sway.len() {
-        b.push(&sway.frame(i)).unwrap();
-    }
-    b.finish().unwrap()
+    build_skinned_with(sway, options, |_| {})
 }
 
 #[test]
@@ -711,6 +700,60 @@ fn a_player_reading_the_skinned_file_sees_the_error_reported() {
             "{encoding:?}: played {played}, reported {reported}"
         );
     }
+}
+
+/// A skinned file from a builder `set` adjusts.
+fn build_skinned_with(
+    sway: &Sway,
+    options: &AnimatedOptions,
+    set: impl FnOnce(&mut BasisGlbBuilder),
+) -> (Vec<u8>, BasisReport) {
+    let mut b = BasisGlbBuilder::new(
+        sway.topology(),
+        sway.reference_radii(),
+        sway.bounds(),
+        options,
+    )
+    .unwrap()
+    .skinned();
+    set(&mut b);
+    for i in 0..sway.len() {
+        b.push(&sway.frame(i)).unwrap();
+    }
+    b.finish().unwrap()
+}
+
+/// Either rig a skinned file may keep ([`skin::Bind`]) plays as
+/// reported, and a file that misses its budget (here one of 0) keeps the
+/// nearer.
+#[test]
+fn either_bind_plays_as_reported_and_the_file_keeps_the_nearer() {
+    let sway = sway(7);
+    let options = AnimatedOptions::default().with_skeleton_joints(2);
+    let exact: Vec<[Vec<Vec3>; 2]> = (0..sway.len()).map(|k| exact(&sway, &options, k)).collect();
+    let float = Parsed::new(&build(&sway, &options).0);
+    let mut errors = Vec::new();
+    for bind in [skin::Bind::Bark, skin::Bind::Open] {
+        let (glb, report) = build_skinned_with(&sway, &options, |b| {
+            b.only_bind = Some(bind);
+            b.skin_budget = Some(0.0);
+        });
+        let played = skinned_played_error(&Parsed::new(&glb), &float, &exact, true);
+        let reported = report.max_error * report.height;
+        assert!(
+            played <= reported * 1.001 + 1e-5 && played >= reported * 0.5,
+            "{bind:?}: played {played}, reported {reported}"
+        );
+        errors.push(report.max_error);
+    }
+    assert_ne!(errors[0], errors[1], "the two rigs are alike: {errors:?}");
+    let (_, kept) = build_skinned_with(&sway, &options, |b| b.skin_budget = Some(0.0));
+    assert_eq!(kept.max_error, errors[0].min(errors[1]), "{errors:?}");
+    // Within the budget, the first rig is kept without trying the other.
+    let (_, within) = build_skinned(&sway, &options);
+    assert!(within.within_budget, "{within:?}");
+    let (_, first) = build_skinned_with(&sway, &options, |b| b.only_bind = Some(skin::Bind::Bark));
+    assert_eq!(within.max_error, first.max_error);
 }
 
 #[test]

@@ -418,10 +418,10 @@ fn skinned_cell(
 
 /// The largest skinned-animation error (fraction of height) accepted on
 /// a morph between trees of the two families. A regression bound, not
-/// the 1 % aim: 256 rigid joints cannot follow such a morph (6-30 %
+/// the 1 % aim: 256 rigid joints cannot follow such a morph (4.2-15.8 %
 /// measured on the CI set); before residual targets were chosen by the
-/// error a player shows, ash-large → mt-broadleaf reached 41 % (19 %
-/// since).
+/// error a player shows, ash-large → mt-broadleaf reached 41 % (5.0 %
+/// now).
 const MAX_SKINNED_ERROR: f32 = 0.35;
 
 /// The error the default skinned animation (256 joints, meshopt) of the

@@ -37,8 +37,10 @@
 //!   vertices spread widest: its leaves open. Neither is better on every
 //!   morph (default morph at 256 joints: 3.60 % of the height against
 //!   1.86 %; ash-large → mt-weeping 7.43 % against 8.81 %), so the
-//!   caller makes both and keeps the one a player shows nearer the
-//!   samples.
+//!   caller makes both (the second only when the first misses the budget)
+//!   and keeps the one a player shows nearer the samples. Both share the
+//!   joints: the merge costs are measured with each strand bound where its
+//!   bark spreads widest.
 //! - **Transforms.** At every sample a joint's transform is the
 //!   similarity (uniform scale, rotation, translation) that carries its
 //!   top strand's bind bark closest to where it is, by least squares. So
@@ -519,13 +521,15 @@ pub(crate) enum Bind {
     /// The first sample where the bark it follows spreads widest.
     Bark,
     /// Of the samples where that bark spreads within [`OPEN_TIE`] of its
-    /// widest, the one where all the joint's vertices spread widest.
+    /// widest, the one where all the joint's vertices spread widest (the
+    /// bark's own choice when none of them spreads at all).
     Open,
 }
 
-/// How near its widest a joint's bark must spread for [`Bind::Open`] to
-/// bind it there: still bark spreads the same up to rounding, and on the
-/// default morph any share from 0.95 to 0.999 picks the same samples.
+/// How near its widest a joint's bark must spread ([`spread`], a sum of
+/// squared distances: 0.99 is about 0.5 % in length) for [`Bind::Open`]
+/// to bind it there: still bark spreads the same up to rounding, and on
+/// the default morph any share from 0.95 to 0.999 picks the same samples.
 const OPEN_TIE: f64 = 0.99;
 
 /// Each joint's bind sample: where the vertices it follows (`anchors`,
@@ -533,7 +537,7 @@ const OPEN_TIE: f64 = 0.99;
 pub(crate) fn bind_samples(anchors: &[Vec<u32>], samples: &Samples) -> Vec<usize> {
     anchors
         .par_iter()
-        .map(|vs| widest(&spreads(vs, samples), |_| true))
+        .map(|vs| widest(&spreads(vs, samples), |_| true).unwrap_or(0))
         .collect()
 }
 
@@ -553,8 +557,9 @@ pub(crate) fn bind_samples_by(
         .zip(members)
         .map(|(vs, all)| {
             let bark = spreads(vs, samples);
-            let most = bark.iter().copied().fold(0.0, f64::max);
-            widest(&spreads(all, samples), |f| bark[f] >= OPEN_TIE * most)
+            let own = widest(&bark, |_| true).unwrap_or(0);
+            let most = bark[own];
+            widest(&spreads(all, samples), |f| bark[f] >= OPEN_TIE * most).unwrap_or(own)
         })
         .collect()
 }
@@ -566,19 +571,16 @@ fn spreads(vertices: &[u32], samples: &Samples) -> Vec<f64> {
         .collect()
 }
 
-/// The first sample `f` with `among(f)` of the largest `values[f]` (0
-/// when none is).
-fn widest(values: &[f64], among: impl Fn(usize) -> bool) -> usize {
+/// The first sample `f` with `among(f)` of the largest `values[f]`, if
+/// any is at least 0 (a spread of `NaN` is none).
+fn widest(values: &[f64], among: impl Fn(usize) -> bool) -> Option<usize> {
     (0..values.len())
         .filter(|&f| among(f))
-        .fold((0, -1.0), |best, f| {
-            if values[f] > best.1 {
-                (f, values[f])
-            } else {
-                best
-            }
+        .fold(None, |best: Option<usize>, f| match best {
+            Some(b) if values[f] <= values[b] => Some(b),
+            _ if values[f] >= 0.0 => Some(f),
+            _ => best,
         })
-        .0
 }
 
 /// `Σ |p − mean|²`.

@@ -238,9 +238,9 @@ fn a_strand_that_wilts_while_its_parent_grows_keeps_its_joint() {
 
 /// Samples of a still twig (`0..4`) with a leaf (`4..8`) that is folded
 /// onto its anchor at samples 0 and 1, half open at 2 and open at 3, then
-/// (sample 4) the twig shrinks a little about its middle as the leaf
-/// starts to fold again.
-fn leaf_opens_on_still_bark() -> (Vec<Vec3>, Columns) {
+/// (sample 4) the twig shrinks a little about its middle while the leaf
+/// is `last` of its size.
+fn leaf_opens_on_still_bark(last: f32) -> (Vec<Vec3>, Columns) {
     let bark: Vec<Vec3> = (0..4)
         .map(|i| Vec3::new(0.0, i as f32 * 0.5, 0.0))
         .collect();
@@ -252,7 +252,7 @@ fn leaf_opens_on_still_bark() -> (Vec<Vec3>, Columns) {
         Vec3::new(-0.2, 0.4, 0.0),
     ];
     let at = |f: usize| -> Vec<Vec3> {
-        let open = [0.0, 0.0, 0.5, 1.0, 0.9][f];
+        let open = [0.0, 0.0, 0.5, 1.0, last][f];
         let shrink = if f == 4 { 0.997 } else { 1.0 };
         let middle = Vec3::new(0.0, 0.75, 0.0);
         (bark.iter().map(|p| middle + (*p - middle) * shrink))
@@ -282,9 +282,6 @@ fn twig_bind(base: &[Vec3], columns: &Columns, bind: Bind) -> usize {
     let mut out = Vec::new();
     with_samples(base, columns, |samples| {
         out = bind_samples_by(bind, &anchors, &members, samples);
-        if bind == Bind::Bark {
-            assert_eq!(out, bind_samples(&anchors, samples));
-        }
     });
     out[0]
 }
@@ -295,19 +292,24 @@ fn an_open_bind_is_where_the_leaves_are_open_among_the_barks_widest() {
     // at every one of those samples: the first of them bound the default
     // morph's joints with folded leaves (3.60 % of the height off at 256
     // joints; 1.86 % bound open).
-    let (base, columns) = leaf_opens_on_still_bark();
+    let (base, columns) = leaf_opens_on_still_bark(0.9);
     assert_eq!(twig_bind(&base, &columns, Bind::Bark), 0);
-    // Sample 4's bark spreads 0.6 % less, within the tie, but its leaf is
-    // folding again: sample 3 is where the leaf is open.
+    // Sample 4's bark spreads 0.6 % less (its squared distances), within
+    // the tie, but its leaf is folding again: sample 3 is where the leaf
+    // is open.
     assert_eq!(twig_bind(&base, &columns, Bind::Open), 3);
+    // Within the tie, the widest leaf wins even where the bark is a
+    // little smaller.
+    let (base, columns) = leaf_opens_on_still_bark(1.1);
+    assert_eq!(twig_bind(&base, &columns, Bind::Open), 4);
 }
 
 #[test]
 fn an_open_bind_never_takes_a_sample_where_the_bark_has_not_grown() {
-    // A twig that grows from half its length while its leaf is open from
-    // the start: the leaf spreads the joint widest at sample 0, but the
-    // bark is bound where it has grown.
-    let (base, mut columns) = leaf_opens_on_still_bark();
+    // A twig that grows from half its length, its leaf thrown 3 m out
+    // at sample 0: the joint's vertices spread widest there, but the bark
+    // is bound where it has grown.
+    let (base, mut columns) = leaf_opens_on_still_bark(0.9);
     let n = base.len();
     for f in 0..5 {
         let grown = [0.5, 0.6, 0.7, 0.8, 1.0][f];
@@ -315,7 +317,7 @@ fn an_open_bind_never_takes_a_sample_where_the_bark_has_not_grown() {
         for (v, b) in base.iter().enumerate().take(4) {
             column[n + v] = b.y * grown - b.y;
         }
-        // The leaf open and far out at sample 0, folded after.
+        // The leaf's x: 3 m out at sample 0, back at its anchor after.
         column[4..8].fill(if f == 0 { 3.0 } else { 0.0 });
     }
     assert_eq!(twig_bind(&base, &columns, Bind::Open), 4);

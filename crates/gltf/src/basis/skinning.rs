@@ -233,8 +233,8 @@ impl Skin {
     }
 
     /// Hands over the samples' columns (displacements, normal changes),
-    /// for another rig of the same samples; the skeleton measures no
-    /// error until they are back ([`Skin::put_samples`]).
+    /// for another rig of the same samples; the skeleton cannot measure
+    /// its error until they are back ([`Skin::put_samples`]).
     pub(crate) fn take_samples(&mut self) -> (Columns, Columns) {
         (
             std::mem::take(&mut self.displacements),
@@ -311,6 +311,10 @@ impl Skin {
         offset: impl Fn(usize, usize, usize) -> Vec3 + Sync,
     ) -> Vec<f32> {
         let samples = self.samples();
+        debug_assert!(
+            samples.count() > 0 || base.positions.is_empty(),
+            "the samples were handed over (Skin::take_samples)"
+        );
         (0..samples.count())
             .into_par_iter()
             .map(|f| {

@@ -802,3 +802,32 @@ fn the_normals_a_player_computes_stay_within_the_normal_budget() {
         }
     }
 }
+
+/// A skinned residual fitted with several target counts in turn keeps
+/// the fit a player shows nearest when none is within budget, whichever
+/// came first, and stops at the first that is.
+#[test]
+fn a_skinned_residual_keeps_the_nearest_of_its_fits() {
+    let sway = sway(7);
+    let options = AnimatedOptions::default().with_skeleton_joints(2);
+    let fitted = |ranks: &[usize], budget: f32| {
+        build_skinned_with(&sway, &options, |b| {
+            b.only_bind = Some(skin::Bind::Bark);
+            b.skin_budget = Some(budget);
+            b.skin_ranks = Some(ranks.to_vec());
+        })
+        .1
+    };
+    let alone: Vec<BasisReport> = [1, 2, 3].iter().map(|&r| fitted(&[r], 0.0)).collect();
+    let nearest = alone
+        .iter()
+        .map(|r| r.max_error)
+        .fold(f32::INFINITY, f32::min);
+    for ranks in [[1, 2, 3], [3, 2, 1]] {
+        let kept = fitted(&ranks, 0.0);
+        assert_eq!(kept.max_error, nearest, "{ranks:?}: {kept:?} of {alone:?}");
+    }
+    assert!(alone.iter().any(|r| r.targets > 1), "{alone:?}");
+    let loose = fitted(&[1, 3], 1.0);
+    assert!(loose.within_budget && loose.targets <= 1, "{loose:?}");
+}

@@ -79,6 +79,51 @@ pub(crate) struct Principal {
     /// Frame `j`'s weight on target `k` at `weights[j · count + k]`.
     pub(crate) weights: Vec<f32>,
     pub(crate) count: usize,
+    /// `leading[K − 1]`: the weights (`[j · K + k]`) that fit the samples
+    /// best with the first `K` targets alone, where they are not the first
+    /// `K` of `weights`. Empty for principal displacements, which are
+    /// orthogonal: dropping the last ones leaves the others' weights
+    /// best. A weighted fit's targets are not orthogonal in each sample's
+    /// weighting, so there the first `K` of all the weights can miss a
+    /// sample by far more than the `K` targets need to
+    /// ([`super::weighted`]).
+    pub(crate) leading: Vec<Vec<f32>>,
+}
+
+impl Principal {
+    /// Each frame's weights on the first `k` targets, as they fit best
+    /// with those alone (`[j · k + t]`).
+    pub(crate) fn leading_weights(&self, k: usize) -> std::borrow::Cow<'_, [f32]> {
+        if k == self.count {
+            return std::borrow::Cow::Borrowed(&self.weights);
+        }
+        if k > 0
+            && let Some(w) = self.leading.get(k - 1)
+        {
+            return std::borrow::Cow::Borrowed(w);
+        }
+        let frames = self.weights.len().checked_div(self.count).unwrap_or(0);
+        std::borrow::Cow::Owned(
+            (0..frames)
+                .flat_map(|j| {
+                    self.weights[j * self.count..j * self.count + k]
+                        .iter()
+                        .copied()
+                })
+                .collect(),
+        )
+    }
+
+    /// Keeps the first `k` targets, with the weights that fit best with
+    /// them alone.
+    pub(crate) fn truncate(&mut self, k: usize) {
+        let k = k.min(self.count);
+        self.weights = self.leading_weights(k).into_owned();
+        self.positions.data.truncate(k * self.positions.rows);
+        self.normals.data.truncate(k * self.normals.rows);
+        self.count = k;
+        self.leading.clear();
+    }
 }
 
 /// At most `max` principal displacements of `d` (and the matching normal
@@ -130,6 +175,7 @@ pub(crate) fn principal_of(d: &Columns, nd: &Columns, spectrum: Spectrum) -> Pri
         normals: multiply(nd, project.as_ref()),
         weights,
         count,
+        leading: Vec::new(),
     }
 }
 

@@ -193,6 +193,7 @@ mod tests {
             normals,
             weights: vec![1.0; changes.len()],
             count: changes.len(),
+            leading: Vec::new(),
         }
     }
 

@@ -35,8 +35,9 @@
 //!   equally widely. [`Bind::Bark`] takes the first of them (rounding
 //!   picks which), [`Bind::Open`] the one where all the joint's
 //!   vertices spread widest: its leaves open. Neither is better on every
-//!   morph (default morph at 256 joints: 3.60 % of the height against
-//!   1.86 %; ash-large → mt-weeping 7.43 % against 8.81 %), so the
+//!   morph (with 4 residual targets, default morph at 256 joints: 3.60 %
+//!   of the height against 1.86 %; ash-large → mt-weeping 7.43 % against
+//!   8.81 %), so the
 //!   caller makes both (the second only when the first misses the budget)
 //!   and keeps the one a player shows nearer the samples. Both share the
 //!   joints: the merge costs are measured with each strand bound where its

@@ -291,7 +291,7 @@ fn an_open_bind_is_where_the_leaves_are_open_among_the_barks_widest() {
     // Bark standing still while its leaves fold or unfold spreads equally
     // at every one of those samples: the first of them bound the default
     // morph's joints with folded leaves (3.60 % of the height off at 256
-    // joints; 1.86 % bound open).
+    // joints with 4 residual targets; 1.86 % bound open).
     let (base, columns) = leaf_opens_on_still_bark(0.9);
     assert_eq!(twig_bind(&base, &columns, Bind::Bark), 0);
     // Sample 4's bark spreads 0.6 % less (its squared distances), within

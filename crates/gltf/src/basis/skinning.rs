@@ -30,8 +30,8 @@ use crate::gl::FLOAT;
 /// targets reach on a morph between two different trees.
 pub const SKIN_ERROR_BUDGET: f32 = 0.01;
 
-/// How much above the smallest error of any residual target count a
-/// skinned animation short of its budget accepts, to carry fewer targets.
+/// How much above the error of all its residual targets a skinned
+/// animation short of its budget accepts, to carry fewer targets.
 const SKIN_TARGET_SLACK: f32 = 1.1;
 
 /// Seconds before a swap at which the `hidden` weight still has its old
@@ -273,43 +273,63 @@ impl Skin {
     /// shows it (locals composed in `f32`, targets as stored), from the
     /// sample as meshed.
     pub(crate) fn max_error(&self, base: &BasePose, targets: &Targets) -> f32 {
-        self.worst(base, 1, |f, v, _| targets.offset_at(f, v))[1]
+        self.worst(base, |f, v| targets.offset_at(f, v))
     }
 
     /// How many of the residual targets `principal` to keep, and the
     /// error a player then shows: the fewest within `budget` (metres),
-    /// else the fewest within [`SKIN_TARGET_SLACK`] of the best count's.
-    /// Measured through the skeleton, not in the joints' frames: a
-    /// residual divided by a small joint scale can span a target that
-    /// moves other samples' vertices far more than it helps.
+    /// or when all of them miss it, the fewest within
+    /// [`SKIN_TARGET_SLACK`] of all of them. Each count is measured with
+    /// the weights that fit best with its targets alone
+    /// ([`Principal::leading_weights`]), through the skeleton, not in the
+    /// joints' frames: a residual divided by a small joint scale can span
+    /// a target that moves other samples' vertices far more than it
+    /// helps.
+    ///
+    /// The count is found by bisection: the error falls with the count
+    /// nearly everywhere (a weighted fit's leading targets are not the
+    /// best of their count, so not everywhere), and measuring every
+    /// count took as long as the fit. Bisection can pass over a smaller
+    /// count that a dip brings within the threshold; it never keeps a
+    /// count that misses it unless all of them do.
     pub(crate) fn fewest_that_help(
         &self,
         base: &BasePose,
         principal: &Principal,
         budget: f32,
     ) -> (usize, f32) {
-        let count = principal.count;
-        let errors = self.worst(base, count, |f, v, k| {
-            principal.positions.vertex(k, v) * principal.weights[f * count + k]
-        });
-        let best = errors.iter().copied().fold(f32::INFINITY, f32::min);
-        let k = errors
-            .iter()
-            .position(|&e| e <= budget)
-            .or_else(|| errors.iter().position(|&e| e <= best * SKIN_TARGET_SLACK))
-            .unwrap_or(count);
-        (k, errors[k])
+        let error_of = |k: usize| {
+            let weights = principal.leading_weights(k);
+            self.worst(base, |f, v| {
+                (0..k)
+                    .map(|t| principal.positions.vertex(t, v) * weights[f * k + t])
+                    .sum()
+            })
+        };
+        let all = principal.count;
+        let all_error = error_of(all);
+        let threshold = if all_error <= budget {
+            budget
+        } else {
+            all_error * SKIN_TARGET_SLACK
+        };
+        // `hi` meets the threshold; `lo` is the fewest not passed over.
+        let (mut lo, mut hi, mut hi_error) = (0, all, all_error);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            let error = error_of(mid);
+            if error <= threshold {
+                (hi, hi_error) = (mid, error);
+            } else {
+                lo = mid + 1;
+            }
+        }
+        (hi, hi_error)
     }
 
-    /// For `K = 0 … count`, the largest distance of any vertex of any
-    /// sample as the skeleton shows it with the bind pose plus the first
-    /// `K` offsets `offset(sample, vertex, k)`.
-    fn worst(
-        &self,
-        base: &BasePose,
-        count: usize,
-        offset: impl Fn(usize, usize, usize) -> Vec3 + Sync,
-    ) -> Vec<f32> {
+    /// The largest distance of any vertex of any sample as the skeleton
+    /// shows it with the bind pose plus `offset(sample, vertex)`.
+    fn worst(&self, base: &BasePose, offset: impl Fn(usize, usize) -> Vec3 + Sync) -> f32 {
         let samples = self.samples();
         debug_assert!(
             samples.count() > 0 || base.positions.is_empty(),
@@ -319,24 +339,15 @@ impl Skin {
             .into_par_iter()
             .map(|f| {
                 let mats = self.poses.skinning(&self.rig, f);
-                let mut worst = vec![0f32; count + 1];
-                for v in 0..base.positions.len() {
-                    let m = mats[self.rig.vertex_joint[v] as usize];
-                    let exact = samples.position(f, v);
-                    let mut bound = base.positions[v];
-                    for (k, w) in worst.iter_mut().enumerate() {
-                        if k > 0 {
-                            bound += offset(f, v, k - 1);
-                        }
-                        *w = w.max(m.transform_point3(bound).distance(exact));
-                    }
-                }
-                worst
+                (0..base.positions.len())
+                    .map(|v| {
+                        let m = mats[self.rig.vertex_joint[v] as usize];
+                        let bound = base.positions[v] + offset(f, v);
+                        m.transform_point3(bound).distance(samples.position(f, v))
+                    })
+                    .fold(0f32, f32::max)
             })
-            .reduce(
-                || vec![0f32; count + 1],
-                |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
-            )
+            .reduce(|| 0f32, f32::max)
     }
 
     /// Writes the joint nodes, their inverse bind matrices (which undo the

@@ -34,6 +34,9 @@ pub const SKIN_ERROR_BUDGET: f32 = 0.01;
 /// animation short of its budget accepts, to carry fewer targets.
 const SKIN_TARGET_SLACK: f32 = 1.1;
 
+/// Vertices per block of [`Skin::worst`]'s parallel pass.
+const WORST_BLOCK: usize = 2048;
+
 /// Seconds before a swap at which the `hidden` weight still has its old
 /// value.
 const SWAP_EDGE: f32 = 1e-3;
@@ -335,17 +338,27 @@ impl Skin {
             samples.count() > 0 || base.positions.is_empty(),
             "the samples were handed over (Skin::take_samples)"
         );
-        (0..samples.count())
+        let mats: Vec<Vec<glam::Mat4>> = (0..samples.count())
             .into_par_iter()
-            .map(|f| {
-                let mats = self.poses.skinning(&self.rig, f);
-                (0..base.positions.len())
-                    .map(|v| {
+            .map(|f| self.poses.skinning(&self.rig, f))
+            .collect();
+        // Vertex blocks outside, samples inside: a block's targets stay in
+        // cache across the samples instead of being read once per sample.
+        let n = base.positions.len();
+        (0..n.div_ceil(WORST_BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let block = b * WORST_BLOCK..((b + 1) * WORST_BLOCK).min(n);
+                let mut worst = 0f32;
+                for (f, mats) in mats.iter().enumerate() {
+                    for v in block.clone() {
                         let m = mats[self.rig.vertex_joint[v] as usize];
                         let bound = base.positions[v] + offset(f, v);
-                        m.transform_point3(bound).distance(samples.position(f, v))
-                    })
-                    .fold(0f32, f32::max)
+                        worst =
+                            worst.max(m.transform_point3(bound).distance(samples.position(f, v)));
+                    }
+                }
+                worst
             })
             .reduce(|| 0f32, f32::max)
     }

@@ -94,7 +94,7 @@ pub(crate) fn refit(d: &Columns, nd: &Columns, shown: &Shown, k: usize) -> Optio
     };
     let systems = joint_systems(&unscaled, &weights, k);
     let normals = solve_targets(nd, &unscaled, &weights, &systems, k);
-    Some(ordered(targets, normals, (&weights, &fitted), shown, k))
+    Some(ordered(targets, normals, (&weights, &fitted), k))
 }
 
 /// The starting weights: each sample's coordinates in the `k` principal
@@ -243,35 +243,25 @@ fn assemble(blocks: &[Vec<f32>], n: usize, k: usize) -> Columns {
     out
 }
 
-/// What [`ordered`] needs again of the last weights pass: each joint's
-/// Gram matrix `G_j` of the targets and each sample's right-hand side
-/// `b_f`.
+/// What [`ordered`] needs again of the last weights pass: each sample's
+/// system `A_f = Σ_j s_j(f)² G_j` (`G_j` the Gram matrix of joint `j`'s
+/// targets) and right-hand side `b_f`. Restricted to the leading targets,
+/// they are the systems of those targets alone.
 #[derive(Default)]
 struct Fitted {
-    grams: Vec<Vec<f64>>,
+    systems: Vec<Mat<f64>>,
     /// `b_f` at `[f · k ..]`.
     rhs: Vec<f64>,
 }
 
 impl Fitted {
-    /// Sample `f`'s system `A_f = Σ_j s_j(f)² G_j` and `b_f`, restricted
-    /// to the targets `among` (of `k`).
-    fn system(&self, shown: &Shown, f: usize, among: &[usize], k: usize) -> (Mat<f64>, Vec<f64>) {
-        let m = among.len();
-        let mut a = Mat::<f64>::zeros(m, m);
-        for (j, g) in self.grams.iter().enumerate() {
-            let s = shown.weight(j, f);
-            if s == 0.0 {
-                continue;
-            }
-            for (x, &tx) in among.iter().enumerate() {
-                for (y, &ty) in among.iter().enumerate() {
-                    a[(x, y)] += s * g[tx * k + ty];
-                }
-            }
-        }
-        let b = among.iter().map(|&t| self.rhs[f * k + t]).collect();
-        (a, b)
+    /// Sample `f`'s weights on the targets `among` (of `k`) that fit it
+    /// best with those alone.
+    fn weights(&self, f: usize, among: &[usize], k: usize) -> Vec<f64> {
+        let a = &self.systems[f];
+        let sub = Mat::<f64>::from_fn(among.len(), among.len(), |x, y| a[(among[x], among[y])]);
+        let b: Vec<f64> = among.iter().map(|&t| self.rhs[f * k + t]).collect();
+        solve(sub, &b)
     }
 }
 
@@ -327,14 +317,26 @@ fn solve_weights(d: &Columns, shown: &Shown, targets: &Columns, k: usize) -> (Ve
             *r += p;
         }
     }
-    let fitted = Fitted { grams, rhs };
+    let systems: Vec<Mat<f64>> = (0..frames)
+        .into_par_iter()
+        .map(|f| {
+            let mut a = Mat::<f64>::zeros(k, k);
+            for (j, g) in grams.iter().enumerate() {
+                let s = shown.weight(j, f);
+                for x in 0..k {
+                    for y in 0..k {
+                        a[(x, y)] += s * g[x * k + y];
+                    }
+                }
+            }
+            a
+        })
+        .collect();
+    let fitted = Fitted { systems, rhs };
     let all: Vec<usize> = (0..k).collect();
     let weights = (0..frames)
         .into_par_iter()
-        .flat_map_iter(|f| {
-            let (a, b) = fitted.system(shown, f, &all, k);
-            solve(a, &b)
-        })
+        .flat_map_iter(|f| fitted.weights(f, &all, k))
         .collect();
     (weights, fitted)
 }
@@ -383,14 +385,13 @@ fn joint_grams(shown: &Shown, targets: &Columns, k: usize) -> Vec<Vec<f64>> {
 }
 
 /// The targets and weights as a [`Principal`], ordered by the shown
-/// motion each carries (`Σ_f w_fk² Σ_j s_j(f)² G_j[k][k]`), largest first,
-/// with the weights each leading count fits best with (`fitted`: the
-/// last weights pass's systems, for the last targets).
+/// motion each carries (`Σ_f w_fk² A_f[k][k]`), largest first, with the
+/// weights each leading count fits best with (`fitted`: the last weights
+/// pass's systems, for the last targets).
 fn ordered(
     targets: Columns,
     normals: Columns,
     (weights, fitted): (&[f64], &Fitted),
-    shown: &Shown,
     k: usize,
 ) -> Principal {
     let frames = weights.len() / k;
@@ -399,12 +400,7 @@ fn ordered(
             (0..frames)
                 .map(|f| {
                     let w = weights[f * k + t];
-                    let g: f64 = fitted
-                        .grams
-                        .iter()
-                        .enumerate()
-                        .map(|(j, g)| shown.weight(j, f) * g[t * k + t])
-                        .sum();
+                    let g = fitted.systems[f][(t, t)];
                     w * w * g
                 })
                 .sum()
@@ -426,28 +422,22 @@ fn ordered(
             .flat_map(|f| order.iter().map(move |&t| weights[f * k + t] as f32))
             .collect(),
         count: k,
-        leading: leading_weights(fitted, shown, &order, frames),
+        leading: leading_weights(fitted, &order, frames),
     }
 }
 
 /// For each count `K` below all of `order`, each sample's weights on the
 /// first `K` targets of `order` that fit it best with those alone
 /// (`[f · K + t]`).
-fn leading_weights(
-    fitted: &Fitted,
-    shown: &Shown,
-    order: &[usize],
-    frames: usize,
-) -> Vec<Vec<f32>> {
+fn leading_weights(fitted: &Fitted, order: &[usize], frames: usize) -> Vec<Vec<f32>> {
     let k = order.len();
     (1..k)
         .into_par_iter()
         .map(|count| {
-            let among = &order[..count];
             (0..frames)
                 .flat_map(|f| {
-                    let (a, b) = fitted.system(shown, f, among, k);
-                    solve(a, &b).into_iter().map(|w| w as f32)
+                    let w = fitted.weights(f, &order[..count], k);
+                    w.into_iter().map(|w| w as f32)
                 })
                 .collect()
         })

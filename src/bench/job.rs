@@ -29,9 +29,9 @@ const FRAMES: u32 = 60;
 /// Keeps what a worker would store: the files' size and, for a job's run,
 /// the plan.
 #[derive(Default)]
-struct Kept {
+pub(super) struct Kept {
     bytes: usize,
-    plan: Option<Vec<u8>>,
+    pub(super) plan: Option<Vec<u8>>,
     /// Whether the plan is asked for: a job's run publishes it, a render
     /// of a stored plan does not (the service's render sinks keep none),
     /// so its rows do not time encoding the plan again.
@@ -40,7 +40,7 @@ struct Kept {
 
 impl Kept {
     /// A worker running a job: the plan is kept.
-    fn run() -> Kept {
+    pub(super) fn run() -> Kept {
         Kept {
             keeps_plan: true,
             ..Kept::default()
@@ -196,18 +196,25 @@ fn time_from_stored_plan(
     plan: &[u8],
     mut render: impl FnMut(&JobInput<'_>),
 ) -> (f64, f64, usize) {
+    measure(quick, || from_stored_plan(spec, plan, &mut render))
+}
+
+/// Runs `render` on the input of a process that did not run the job: no
+/// trees, and the plan the job stored.
+pub(super) fn from_stored_plan<R>(
+    spec: &JobSpec,
+    plan: &[u8],
+    render: impl FnOnce(&JobInput<'_>) -> R,
+) -> R {
     let none: HashMap<String, Arc<InputTree>> = HashMap::new();
     let load = || Some(plan.to_vec());
-    measure(quick, || {
-        let job = JobInput {
-            spec,
-            trees: &none,
-            stored_plan: Some(StoredPlan {
-                key: "job",
-                load: &load,
-            }),
-        };
-        render(&job);
+    render(&JobInput {
+        spec,
+        trees: &none,
+        stored_plan: Some(StoredPlan {
+            key: "job",
+            load: &load,
+        }),
     })
 }
 

@@ -299,17 +299,21 @@ pub(super) fn morph_rows(quick: bool, rows: &mut Vec<Row>) {
 /// `GET /v1/jobs/{id}/frame.glb?t=` and `stream?t=` without HTTP: the
 /// frame at an instant of a 60-frame morph with default options, from
 /// trees whose analysis is cached (as the service keeps them). Cold, the
-/// runner plans and probes first; with the plan kept (the job ran in this
-/// process, or an instant of it was asked before), it renders one
-/// per-frame GLB, one one-frame delta stream, or that stream's frame
-/// record (what the web viewer fetches when scrubbing between frames).
+/// runner plans and probes first, as the CLI's `--at` does; from the plan
+/// the job stored, a process that did not run the job reads it and
+/// renders (the service's first request for an instant: the issue's
+/// target for an uncached render is on this row); with the plan kept (the
+/// job ran in this process, or an instant of it was asked before), it
+/// renders one per-frame GLB, one one-frame delta stream, or that
+/// stream's frame record (what the web viewer fetches when scrubbing
+/// between frames).
 fn instant_rows(
     quick: bool,
     (a, aa): (&Tree, &treemorph_analysis::Analysis),
     (b, ab): (&Tree, &treemorph_analysis::Analysis),
     target: f64,
     (input, size): (&str, &str),
-) -> [Row; 4] {
+) -> [Row; 5] {
     use std::collections::HashMap;
     use std::sync::Arc;
 
@@ -342,7 +346,7 @@ fn instant_rows(
         trees: &trees,
         stored_plan: None,
     };
-    let one = |name: &str, what: &str, render: &dyn Fn() -> Vec<u8>| {
+    let one = |name: &str, what: &str, target: Option<f64>, render: &dyn Fn() -> Vec<u8>| {
         let mut bytes = 0;
         let timing = measure(quick, || bytes = render().len());
         row(
@@ -351,7 +355,7 @@ fn instant_rows(
             size.to_owned(),
             timing,
             String::new(),
-            Some(target),
+            target,
             format!("{what} of {:.2} MB", bytes as f64 / 1e6),
         )
     };
@@ -366,6 +370,7 @@ fn instant_rows(
         scrub.set(scrub.get() + 1);
         (0.375 + scrub.get() as f32 * 0.618_034).fract()
     };
+    let plan = stored_plan(&job);
     let at = |runner: &PipelineRunner, t: f32, part: Option<StreamPart>| match part {
         None => runner.frame_at(&job, t).expect("an instant"),
         Some(part) => runner.stream_at(&job, t, part).expect("an instant"),
@@ -373,25 +378,61 @@ fn instant_rows(
     [
         one(
             "frame at an instant",
-            "plan + probes + one GLB (frame.glb?t=)",
+            "plan + probes + one GLB (`morph --at`, or frame.glb?t= with no stored plan)",
+            None,
             &|| at(&PipelineRunner::default(), 0.375, None),
+        ),
+        one(
+            "frame at an instant, stored plan",
+            "a process that did not run the job: plan read, one GLB (frame.glb?t=)",
+            Some(target),
+            &|| from_stored_plan(&spec, &plan, 0.375),
         ),
         one(
             "frame at an instant, plan kept",
             "one GLB (frame.glb?t=), each run at another instant",
+            Some(target),
             &|| at(&kept, scrubbed(), None),
         ),
         one(
             "stream at an instant, plan kept",
             "a one-frame stream (stream?t=), each run at another instant",
+            Some(target),
             &|| at(&kept, scrubbed(), Some(StreamPart::Whole)),
         ),
         one(
             "frame record at an instant, plan kept",
             "its frame record (stream?t=&header=false), each run at another instant",
+            Some(target),
             &|| at(&kept, scrubbed(), Some(StreamPart::Frame)),
         ),
     ]
+}
+
+/// The plan `job` stores, as a worker running it publishes it.
+fn stored_plan(job: &crate::pipeline::JobInput<'_>) -> Vec<u8> {
+    use crate::pipeline::{JobInput, PipelineRunner, Runner};
+    let spec = job.spec.stored_part().unmeasured();
+    let mut kept = super::job::Kept::run();
+    let run = JobInput {
+        spec: &spec,
+        ..*job
+    };
+    PipelineRunner::default()
+        .run(&run, &mut kept)
+        .expect("the job runs");
+    kept.plan.expect("the run published its plan")
+}
+
+/// The frame at `t` of `spec`'s job, rendered by a process that did not
+/// run it: from the plan it stored, without its trees.
+fn from_stored_plan(spec: &crate::pipeline::JobSpec, plan: &[u8], t: f32) -> Vec<u8> {
+    use crate::pipeline::{PipelineRunner, Runner};
+    super::job::from_stored_plan(spec, plan, |job| {
+        PipelineRunner::default()
+            .frame_at(job, t)
+            .expect("an instant")
+    })
 }
 
 /// The sketch paper's Table 1 input sizes (5,031 branches / 3,830 leaves)

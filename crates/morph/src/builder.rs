@@ -4,7 +4,7 @@
 
 use std::ops::Range;
 
-use glam::{Quat, Vec3};
+use glam::{DQuat, Quat, Vec3};
 use rayon::prelude::*;
 use treemorph_analysis::{Analysis, ChainId};
 use treemorph_tree::geom::NONE;
@@ -210,6 +210,11 @@ fn arc_coefficients_q(a: Quat, b: Quat) -> (Quat, f32) {
     if a.dot(b) < 0.0 {
         b = -b;
     }
+    arc_coefficients_q_to(a, b)
+}
+
+/// The coefficients of the arc from `a` to `b` as given (not negated).
+fn arc_coefficients_q_to(a: DQuat, b: DQuat) -> (Quat, f32) {
     let d = a.dot(b);
     let perp = b - a * d;
     let n = perp.length();
@@ -217,6 +222,33 @@ fn arc_coefficients_q(a: Quat, b: Quat) -> (Quat, f32) {
         return (Quat::from_xyzw(0.0, 0.0, 0.0, 0.0), 0.0);
     }
     ((perp * (1.0 / n)).as_quat(), n.atan2(d) as f32)
+}
+
+/// [`arc_coefficients_q`] for the frames of a chain's samples, taken
+/// base to tip: the first sample's arc is the shortest, and each next
+/// sample's runs to whichever of `b` and `−b` (one rotation, two arcs)
+/// keeps its half-way frame nearest `follow`, the previous sample's
+/// half-way frame (returned for the next). Shortest arcs chosen sample by
+/// sample part ways where a chain's frames turn by about 180° between
+/// the trees (on bush-1 → mt-bushy, a trunk whose source and target
+/// frames differ by a half turn about its axis): two neighbours turn
+/// opposite ways, their frames half way differ by a half turn, and the
+/// normalised lerp between them (a junction's anchor, a leaf's frame)
+/// flips as the sign of their dot product does, so a limb jumped a
+/// third of the tree's height in one frame. The ends are the same
+/// rotations either way.
+fn frame_arc(a: Quat, b: Quat, follow: Option<DQuat>) -> ((Quat, f32), DQuat) {
+    let (da, db) = (a.as_dquat(), b.as_dquat());
+    let (near, far) = (da + db, da - db);
+    let to_b = match follow {
+        Some(m) if near.length() > 1e-6 && far.length() > 1e-6 => {
+            near.normalize().dot(m).abs() >= far.normalize().dot(m).abs()
+        }
+        _ => da.dot(db) >= 0.0,
+    };
+    let b = if to_b { b } else { -b };
+    let mid = (da + b.as_dquat()).normalize();
+    (arc_coefficients_q_to(da, b.as_dquat()), mid)
 }
 
 /// One side's chain-local data relative to its anchor frame.
@@ -482,9 +514,11 @@ fn build_chain(
         [false, true] => (&scratch.locals[1], &scratch.locals[1]),
         [false, false] => return Err(internal("a union chain has no side")),
     };
+    let mut follow = None;
     for (j, (o, radius)) in samples.iter_mut().zip(&scratch.radii).enumerate() {
         let (dir_perp, theta) = arc_coefficients(a.dirs[j], b.dirs[j], a.frames[j] * Vec3::X);
-        let (frame_perp, omega) = arc_coefficients_q(a.frames[j], b.frames[j]);
+        let ((frame_perp, omega), mid) = frame_arc(a.frames[j], b.frames[j], follow);
+        follow = Some(mid);
         *o = Sample {
             dir: a.dirs[j],
             dir_perp,
@@ -1370,4 +1404,69 @@ fn linear_plan(
         height: [size_a[1], size_b[1]],
     };
     (plan, [fa.offset_len, fb.offset_len])
+}
+
+#[cfg(test)]
+mod frame_arc_tests {
+    use std::f32::consts::PI;
+
+    use glam::Quat;
+
+    use super::{arc_coefficients_q, frame_arc};
+
+    /// The frame an arc's coefficients give at weight `w`, as the morpher
+    /// evaluates it.
+    fn at(a: Quat, (perp, omega): (Quat, f32), w: f32) -> Quat {
+        let (s, c) = (omega * w).sin_cos();
+        a * c + perp * s
+    }
+
+    /// The angle of the rotation between two unit quaternions.
+    fn apart(p: Quat, q: Quat) -> f32 {
+        2.0 * p.dot(q).abs().min(1.0).acos()
+    }
+
+    /// A chain's samples whose frames turn by 170°, 178°, 186° and 194°
+    /// about its axis between the trees: the shortest arcs of the last two
+    /// turn the other way (−174°, −166°), so half way the second and
+    /// third sample's frames are a half turn apart. Following the previous
+    /// sample's arc keeps neighbours within their 8° step all along.
+    #[test]
+    fn neighbouring_sample_frames_turn_the_same_way() {
+        let a: Vec<Quat> = (0..4)
+            .map(|j| Quat::from_rotation_x(0.02 * j as f32))
+            .collect();
+        let b: Vec<Quat> = (0..4)
+            .map(|j| Quat::from_rotation_y((170.0 + 8.0 * j as f32).to_radians()) * a[j])
+            .collect();
+        let mut follow = None;
+        let arcs: Vec<(Quat, f32)> = (0..4)
+            .map(|j| {
+                let (arc, mid) = frame_arc(a[j], b[j], follow);
+                follow = Some(mid);
+                arc
+            })
+            .collect();
+        let shortest: Vec<(Quat, f32)> = (0..4).map(|j| arc_coefficients_q(a[j], b[j])).collect();
+        let widest = |arcs: &[(Quat, f32)], w: f32| {
+            (1..4)
+                .map(|j| apart(at(a[j - 1], arcs[j - 1], w), at(a[j], arcs[j], w)))
+                .fold(0.0f32, f32::max)
+        };
+        assert!(
+            widest(&shortest, 0.5) > 0.9 * PI,
+            "the shortest arcs part ways"
+        );
+        for w in [0.1f32, 0.25, 0.5, 0.75, 0.9] {
+            let widest = widest(&arcs, w);
+            assert!(widest < 10f32.to_radians(), "{widest} rad apart at {w}");
+        }
+        for j in 0..4 {
+            assert!(apart(at(a[j], arcs[j], 0.0), a[j]) < 2e-3);
+            assert!(
+                apart(at(a[j], arcs[j], 1.0), b[j]) < 2e-3,
+                "sample {j} ends as b"
+            );
+        }
+    }
 }

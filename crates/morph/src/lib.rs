@@ -156,6 +156,12 @@
 //! the in-between segment has the lerped length and the slerped direction,
 //! and the chain is rebuilt from the junction segment by segment. Sample
 //! frames (chain-local axes) are slerped the same way and radii lerped.
+//! A rotation has two arcs (to `b` and to `−b`); the first sample of a
+//! chain takes the shorter, and each next sample the one whose half-way
+//! frame is nearer its predecessor's, so neighbouring frames turn the same
+//! way even where a chain's frames turn by about a half turn between the
+//! trees (third-party trees do; a junction or leaf between two frames
+//! turning opposite ways jumped mid-morph).
 //! A chain that turns keeps its length, and a chain is never detached from
 //! its parent: the junction is *on* the parent's axis by construction, so
 //! no branch floats at any t. Growing and wilting chains keep their shape

@@ -61,7 +61,7 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_gltf::stream::{DeltaStreamWriter, StreamOptions};
 use treemorph_morph::{FrameMeter, MetricsOptions, MorphPlan, Morpher};
 use treemorph_sketch::{SketchMetrics, SketchPlan, Sketcher};
-use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter};
+use treemorph_tree::{Aabb, Frame, FrameTopology, JumpMeter, jump_ratio};
 use treemorph_verify::{CrossingMeter, Hints, MeshView, Plausibility, PlausibilityOptions, Report};
 
 use crate::plans::{PlanOf, Planned, Plans, Prepared, Writers};
@@ -525,20 +525,6 @@ impl MorphSeries {
             .write_into(crossings, &mut metrics, &mut summary);
         (metrics, summary)
     }
-}
-
-/// The largest per-frame jump over the median one (frames after the
-/// first, which has no predecessor): 1 for uniform motion, large for a
-/// spike; 0 when the median frame does not move.
-fn jump_ratio(max_jump: &[f32]) -> f32 {
-    let mut jumps = max_jump.get(1..).unwrap_or_default().to_vec();
-    if jumps.is_empty() {
-        return 0.0;
-    }
-    jumps.sort_by(f32::total_cmp);
-    let median = jumps[jumps.len() / 2];
-    let max = jumps[jumps.len() - 1];
-    if median > 0.0 { max / median } else { 0.0 }
 }
 
 fn run_sketch(

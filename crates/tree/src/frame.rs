@@ -283,6 +283,21 @@ impl JumpMeter {
     }
 }
 
+/// The largest per-frame jump of a sequence ([`JumpMeter::jump`] of each
+/// frame) over the median one, frames after the first (which has no
+/// predecessor): 1 for uniform motion, large for a spike; 0 when the
+/// median frame does not move.
+pub fn jump_ratio(max_jump: &[f32]) -> f32 {
+    let mut jumps = max_jump.get(1..).unwrap_or_default().to_vec();
+    if jumps.is_empty() {
+        return 0.0;
+    }
+    jumps.sort_by(f32::total_cmp);
+    let median = jumps[jumps.len() / 2];
+    let max = jumps[jumps.len() - 1];
+    if median > 0.0 { max / median } else { 0.0 }
+}
+
 /// One in-between tree: the varying part of a frame sequence.
 /// `Frame::default()` is an empty frame at t = 0, a buffer for a morpher
 /// or sketcher to fill.

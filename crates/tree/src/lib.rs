@@ -59,7 +59,9 @@ pub mod timing;
 mod validate;
 
 pub use bounds::Aabb;
-pub use frame::{Frame, FrameLeaf, FrameLeafTopology, FrameTopology, JumpMeter, Strands};
+pub use frame::{
+    Frame, FrameLeaf, FrameLeafTopology, FrameTopology, JumpMeter, Strands, jump_ratio,
+};
 pub use model::{
     Bark, BranchingPattern, GroundTruth, GroundTruthGroup, Leaf, LeafMaterial, Materials, Node,
     NodeId, Skeleton, Tree, TreeParts, TreeStats,

@@ -54,7 +54,9 @@
 //!   stretches of `t` busy and others nearly still (a eucalyptus's big
 //!   limbs reshape early, its twigs' growth late moves little). A staged
 //!   plan therefore samples its own motion at 64 instants (the farthest
-//!   any node or leaf corner moves between neighbours) and plays it so
+//!   any node or leaf corner moves between neighbours; 256 when one of
+//!   the 64 intervals moves over 4 times the mean, a burst the 64 do not
+//!   resolve, as in some third-party morphs) and plays it so
 //!   that the motion covered by `t` follows the easing over the whole
 //!   morph: every frame moves about as far as the next, with a gentle
 //!   start and end. A little time (5 % of the mean) is kept for every

@@ -10,22 +10,30 @@ use crate::schedule::{ChainTiming, Front, GROW, LeafTiming, Schedule, UNFOLD};
 use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 
 /// Paces a staged plan's motion evenly (see `schedule`, *Pacing*); `None`
-/// when nothing moves.
-///
-/// The samples are measured in one run per core, each on its own
-/// morpher (a run's first frame is its predecessor's last), and joined:
-/// the same pace as one morpher measuring them in order.
+/// when nothing moves. A motion concentrated beyond what its samples
+/// resolve ([`Pace::concentrated`]) is measured again [`Pace::REFINE`]
+/// times as finely.
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
+    let moved = moves(plan, PACE_SAMPLES);
+    if Pace::concentrated(&moved) {
+        return Pace::of_moves(&moves(plan, PACE_SAMPLES * Pace::REFINE), easing);
+    }
+    Pace::of_moves(&moved, easing)
+}
+
+/// How far `plan`'s motion moves between its `samples` even instants
+/// ([`Pace::moves`]), measured in one run per core, each on its own
+/// morpher (a run's first frame is its predecessor's last), and joined:
+/// the same moves as one morpher measuring them in order.
+fn moves(plan: &MorphPlan, samples: usize) -> Vec<f32> {
     use rayon::prelude::*;
-    let runs = Pace::runs(PACE_SAMPLES, rayon::current_num_threads());
-    let moved: Vec<f32> = runs
-        .into_par_iter()
+    let runs = Pace::runs(samples, rayon::current_num_threads());
+    runs.into_par_iter()
         .flat_map_iter(|span| {
             let mut morpher = Morpher::new(plan);
-            Pace::moves(PACE_SAMPLES, span, |t, frame| morpher.morph(t, frame))
+            Pace::moves(samples, span, |t, frame| morpher.morph(t, frame))
         })
-        .collect();
-    Pace::of_moves(&moved, easing)
+        .collect()
 }
 
 /// Instants at which a staged plan samples its motion to pace it.

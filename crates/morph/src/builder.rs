@@ -246,9 +246,8 @@ fn frame_arc(a: Quat, b: Quat, follow: Option<DQuat>) -> ((Quat, f32), DQuat) {
         }
         _ => da.dot(db) >= 0.0,
     };
-    let b = if to_b { b } else { -b };
-    let mid = (da + b.as_dquat()).normalize();
-    (arc_coefficients_q_to(da, b.as_dquat()), mid)
+    let (b, mid) = if to_b { (db, near) } else { (-db, far) };
+    (arc_coefficients_q_to(da, b), mid.normalize())
 }
 
 /// One side's chain-local data relative to its anchor frame.

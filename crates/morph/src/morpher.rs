@@ -313,7 +313,10 @@ fn tip_first(
 
 /// Radii of a chain grown `reach` metres: node `i`, `c_i` metres out,
 /// takes the full chain's radius at `min(c_i, reach) + shift`, `shift` the
-/// length still to grow.
+/// length still to grow, and never more than its own full radius. Without
+/// that bound a chain thinner at its base than further out (imported
+/// twigs often are) swelled at the base while it grew or retracted, and
+/// a retracting twig's base reached a sibling it never touched at rest.
 fn pipe_radii(own: &[Sample], side: usize, shift: f32, reach: f32, rad: &mut [f32]) {
     let k = own.len();
     let (mut j, mut cj, mut c) = (0usize, 0.0f32, 0.0f32);
@@ -330,7 +333,7 @@ fn pipe_radii(own: &[Sample], side: usize, shift: f32, reach: f32, rad: &mut [f3
             1.0
         };
         let (a, b) = (own[j].radius[side], own[j + 1].radius[side]);
-        rad[i] = (a + (b - a) * f).max(0.0);
+        rad[i] = (a + (b - a) * f).clamp(0.0, own[i].radius[side].max(0.0));
         if i + 1 < k {
             c += own[i].len[side];
         }

@@ -6,7 +6,7 @@ use treemorph_generate::{GenerateOptions, Preset, generate};
 use treemorph_tree::{Frame, Tree};
 
 use crate::*;
-use treemorph_tree::timing::{Ease, Window};
+use treemorph_tree::timing::{Ease, Pace, Window};
 
 fn tree(preset: Preset, seed: u64, size: u32) -> (Tree, Analysis) {
     let t = generate(&GenerateOptions::new(preset, seed).with_size(size)).unwrap();
@@ -104,6 +104,113 @@ fn growth_is_tip_first_and_wilt_retracts_tip_first() {
         }
     }
     assert!(grows > 0 && wilts > 0, "{grows} {wilts}");
+}
+
+/// A wilting subtree has retracted before the chain it hangs on starts to
+/// reshape, and a growing one starts once that chain has reshaped: a twig
+/// still there while its limb swings sweeps through the neighbouring
+/// limbs.
+#[test]
+fn tip_first_subtrees_keep_off_their_hosts_reshape() {
+    let p = staged_plan();
+    let chains = p.chains();
+    let (mut wilts, mut grows) = (0, 0);
+    for (i, c) in chains.iter().enumerate() {
+        if !matches!(c.operation, Operation::Grow | Operation::Wilt) {
+            continue;
+        }
+        let mut root = i;
+        while let Some(up) = chains[root].parent {
+            if chains[up as usize].operation != c.operation {
+                break;
+            }
+            root = up as usize;
+        }
+        let Some(host) = chains[root].parent else {
+            continue;
+        };
+        let own = p.schedule.chains[i].window;
+        let host = p.schedule.chains[host as usize].window;
+        if c.operation == Operation::Wilt {
+            let by = host.start().max(0.2);
+            assert!(
+                own.end() <= by + 1e-6,
+                "chain {i} wilts until {}, its host starts at {}",
+                own.end(),
+                host.start()
+            );
+            wilts += 1;
+        } else {
+            let from = host.end().min(0.8);
+            assert!(
+                own.start() >= from - 1e-6,
+                "chain {i} grows from {}, its host ends at {}",
+                own.start(),
+                host.end()
+            );
+            grows += 1;
+        }
+    }
+    assert!(wilts > 0 && grows > 0, "{wilts} wilting, {grows} growing");
+}
+
+/// Imported twigs are often thinner at their base than further out. A
+/// growing or wilting chain takes the radii of the part of it behind its
+/// tip, and must not swell anywhere past the radius it has when full: a
+/// retracting twig's swollen base reached siblings it never touched at
+/// rest (Modular Tree's bushy tree into ez-tree's oak).
+#[test]
+fn tip_first_chains_never_swell_past_their_full_radii() {
+    let thin_based = |preset, seed| {
+        let mut parts = generate(&GenerateOptions::new(preset, seed).with_size(300))
+            .unwrap()
+            .into_parts();
+        let mut children = vec![0u32; parts.nodes.len()];
+        for n in &parts.nodes {
+            if let Some(p) = n.parent {
+                children[p as usize] += 1;
+            }
+        }
+        for i in 0..parts.nodes.len() {
+            if parts.nodes[i]
+                .parent
+                .is_some_and(|p| children[p as usize] > 1)
+            {
+                parts.nodes[i].radius /= 20.0;
+            }
+        }
+        let t = Tree::new(parts, &treemorph_tree::Limits::default()).unwrap();
+        let a = Analysis::of(&t, &AnalysisOptions::default()).unwrap();
+        (t, a)
+    };
+    let (a, b) = (thin_based(Preset::Conifer, 5), thin_based(Preset::Maple, 6));
+    let p = MorphPlan::new(&a.0, &a.1, &b.0, &b.1, &MorphOptions::default()).unwrap();
+    let fs = frames(&p, 40);
+    let mut checked = 0;
+    for chain in p.chains() {
+        let full = match chain.operation {
+            Operation::Grow => &fs[40],
+            Operation::Wilt => &fs[0],
+            _ => continue,
+        };
+        for n in chain.nodes.start as usize..chain.nodes.end as usize {
+            let most = full.radii[n] * (1.0 + 1e-4) + 1e-7;
+            for f in &fs {
+                assert!(
+                    f.radii[n] <= most,
+                    "node {n} at t = {}: radius {} over its full {}",
+                    f.t,
+                    f.radii[n],
+                    full.radii[n]
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert!(
+        checked > 100,
+        "{checked} nodes of growing and wilting chains"
+    );
 }
 
 /// A leaf on a growing chain opens only once the chain's tip has passed
@@ -290,8 +397,13 @@ fn parallel_pace_runs_equal_one_sequential_run() {
     // Paced as the builder paces it: on the plan before it had a pace.
     let kept = plan.schedule.pace.take();
     let mut morpher = Morpher::new(&plan);
-    let sequential =
-        treemorph_tree::timing::Pace::measure(64, easing, |t, frame| morpher.morph(t, frame));
+    let mut moves = |samples| Pace::moves(samples, 1..=samples, |t, f| morpher.morph(t, f));
+    // As the builder does: finer where 64 samples find a burst.
+    let mut moved = moves(64);
+    if Pace::concentrated(&moved) {
+        moved = moves(64 * Pace::REFINE);
+    }
+    let sequential = Pace::of_moves(&moved, easing);
     assert!(sequential.is_some());
     assert_eq!(kept, sequential);
 }

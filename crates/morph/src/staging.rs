@@ -97,7 +97,7 @@ fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
     let reshape = reshape_phase(plan);
     let delays = delays(plan);
     let fronts = fronts(plan);
-    let chains = plan
+    let mut chains = plan
         .chain_plans
         .iter()
         .enumerate()
@@ -116,6 +116,7 @@ fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
             },
         })
         .collect::<Vec<_>>();
+    clear_of_hosts(plan, &fronts, &mut chains);
     let leaves = plan
         .leaf_plans
         .iter()
@@ -128,6 +129,33 @@ fn staged(options: &ScheduleOptions, plan: &Timed) -> Schedule {
         chains,
         leaves,
         pace: None,
+    }
+}
+
+/// The shortest window, as a share of `t`, a tip-first subtree gets when
+/// its host's reshape squeezes it.
+const TIP_FIRST_WINDOW: f32 = 0.2;
+
+/// Keeps tip-first subtrees off their host's reshape (see `schedule`,
+/// *Phases*): a wilting subtree has retracted when the chain it hangs on
+/// starts to reshape, and a growing one starts once that chain has
+/// reshaped, each within its phase and at least [`TIP_FIRST_WINDOW`]
+/// long. Every chain of a subtree keeps the one clock of its front.
+fn clear_of_hosts(plan: &Timed, fronts: &Fronts, chains: &mut [ChainTiming]) {
+    for i in 0..chains.len() {
+        let op = plan.chain_plans[i].operation;
+        let root = fronts.root[i] as usize;
+        if !matches!(op, Operation::Grow | Operation::Wilt) || plan.chains[root].parent.is_none() {
+            continue;
+        }
+        let host = chains[plan.chain_plans[root].parent as usize].window;
+        chains[i].window = if op == Operation::Wilt {
+            let end = host.start().clamp(SHED[0] + TIP_FIRST_WINDOW, SHED[1]);
+            Window::new(SHED[0], end)
+        } else {
+            let start = host.end().clamp(GROW[0], GROW[1] - TIP_FIRST_WINDOW);
+            Window::new(start, GROW[1])
+        };
     }
 }
 

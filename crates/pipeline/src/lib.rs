@@ -356,7 +356,10 @@ pub enum StreamPart {
 /// - 8: a staged morph routes limbs round the siblings they would pass
 ///   through, and lifts sliding junctions off their parent's axis (the
 ///   plan's chains carry `detour` and `lift`).
-pub const RENDER_VERSION: u32 = 8;
+/// - 9: a growing or wilting chain's radius never exceeds its own full
+///   radius at that node (twigs thinner at the base than further out no
+///   longer swell there).
+pub const RENDER_VERSION: u32 = 9;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

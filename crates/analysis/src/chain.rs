@@ -260,7 +260,8 @@ pub(crate) fn order(skeleton: &Skeleton, options: &AnalysisOptions) -> Ordering 
         let weibull =
             sigma_a <= options.weibull_angle && sigma_r <= options.weibull_radius * mean_r;
         // Gravelius continuation: the smallest branching angle; near-ties
-        // (within 0.01°) go to the thicker child, then the lower id.
+        // (within 0.01°) go to the thicker child, then the lower id. None
+        // when that turns back more than `continuation_angle`.
         let continuation = if weibull {
             None
         } else {
@@ -271,7 +272,7 @@ pub(crate) fn order(skeleton: &Skeleton, options: &AnalysisOptions) -> Ordering 
                     best = k;
                 }
             }
-            Some(children[best])
+            (angles[best] <= options.continuation_angle).then_some(children[best])
         };
         for &c in children {
             if Some(c) == continuation {

@@ -35,7 +35,10 @@
 //!    of order + 1, the children forming one group. Otherwise **Gravelius**:
 //!    the child with the smallest branching angle (near-ties within 0.01°:
 //!    the thicker) continues the parent's chain and order, the others start
-//!    order + 1 chains. A node with one child continues its chain. Every
+//!    order + 1 chains; when even that child turns more than
+//!    [`AnalysisOptions::continuation_angle`] (90°) off the incoming
+//!    branch, none continues (an axis does not turn back on itself) and the
+//!    chain ends there. A node with one child continues its chain. Every
 //!    child of the root starts an order-1 root chain; together they form the
 //!    root group (a multi-stem shrub has several).
 //! 2. **Chains** get Table 1's parameters ([`Chain`]): the polyline with

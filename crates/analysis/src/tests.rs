@@ -362,6 +362,20 @@ fn a_whorl_split_over_close_nodes_is_one_group_but_spaced_laterals_are_not() {
     assert_eq!(group_of(&a, a0).pattern, BranchingPattern::Alternate);
 }
 
+/// The analysis of `tree`, checked, whose three-node `trunk` chain ends
+/// at the fork on its last node.
+fn trunk_ends_at_its_fork(tree: &Tree, trunk: &[u32]) -> Analysis {
+    let a = analyse(tree);
+    check_invariants(tree, &a);
+    let trunk_chain = a.chain(a.chain_of_node(trunk[0]).unwrap());
+    assert_eq!(
+        trunk_chain.nodes,
+        vec![0, trunk[0], trunk[1], trunk[2]],
+        "the trunk chain ends at the fork"
+    );
+    a
+}
+
 #[test]
 fn a_symmetric_fork_ends_the_parent_chain() {
     let mut b = B::new();
@@ -375,14 +389,7 @@ fn a_symmetric_fork_ends_the_parent_chain() {
     b.tip_leaves(&lr, 2);
     b.tip_leaves(&right, 2);
     let tree = b.build();
-    let a = analyse(&tree);
-    check_invariants(&tree, &a);
-    let trunk_chain = a.chain(a.chain_of_node(trunk[0]).unwrap());
-    assert_eq!(
-        trunk_chain.nodes,
-        vec![0, trunk[0], trunk[1], trunk[2]],
-        "the trunk chain ends at the fork"
-    );
+    let a = trunk_ends_at_its_fork(&tree, &trunk);
     let g = group_of(&a, left[0]);
     assert_eq!(g.chains.len(), 2);
     assert_eq!(g.order, 2);
@@ -408,6 +415,29 @@ fn an_asymmetric_fork_is_gravelius() {
     assert_eq!(a.orders()[thick[0] as usize], 1);
     assert_eq!(a.orders()[thin[0] as usize], 2);
     assert_eq!(a.chain_of_node(thick[0]), a.chain_of_node(trunk[0]));
+}
+
+/// A trunk ending in drooping twigs: the one that turns back least would
+/// continue it under Gravelius alone, hooking the trunk downwards (forks
+/// like it are in Modular Tree's bushy and weeping trees), but no child
+/// turning more than `continuation_angle` continues a chain.
+#[test]
+fn no_child_turning_back_continues_a_chain() {
+    let mut b = B::new();
+    let trunk = b.line(0, Vec3::Y, 3, 0.5, 0.15);
+    let less = b.line(trunk[2], Vec3::new(-1.0, -0.5, 0.0), 3, 0.4, 0.08);
+    let more = b.line(trunk[2], Vec3::new(1.0, -0.8, 0.0), 3, 0.4, 0.03);
+    b.tip_leaves(&less, 2);
+    b.tip_leaves(&more, 2);
+    let tree = b.build();
+    let a = trunk_ends_at_its_fork(&tree, &trunk);
+    assert_eq!(a.orders()[less[0] as usize], 2);
+    assert_eq!(a.orders()[more[0] as usize], 2);
+    // Under a wider bound the straighter twig continues, as before.
+    let mut wide = AnalysisOptions::default();
+    wide.continuation_angle = 180.0;
+    let a = Analysis::of(&tree, &wide).unwrap();
+    assert_eq!(a.chain_of_node(less[0]), a.chain_of_node(trunk[0]));
 }
 
 #[test]

@@ -1412,17 +1412,12 @@ mod frame_arc_tests {
     use glam::Quat;
 
     use super::{arc_coefficients_q, frame_arc};
+    use crate::morpher::arc_q;
 
     /// The frame an arc's coefficients give at weight `w`, as the morpher
     /// evaluates it.
     fn at(a: Quat, (perp, omega): (Quat, f32), w: f32) -> Quat {
-        let (s, c) = (omega * w).sin_cos();
-        a * c + perp * s
-    }
-
-    /// The angle of the rotation between two unit quaternions.
-    fn apart(p: Quat, q: Quat) -> f32 {
-        2.0 * p.dot(q).abs().min(1.0).acos()
+        arc_q(a, perp, omega, w)
     }
 
     /// A chain's samples whose frames turn by 170°, 178°, 186° and 194°
@@ -1449,7 +1444,7 @@ mod frame_arc_tests {
         let shortest: Vec<(Quat, f32)> = (0..4).map(|j| arc_coefficients_q(a[j], b[j])).collect();
         let widest = |arcs: &[(Quat, f32)], w: f32| {
             (1..4)
-                .map(|j| apart(at(a[j - 1], arcs[j - 1], w), at(a[j], arcs[j], w)))
+                .map(|j| at(a[j - 1], arcs[j - 1], w).angle_between(at(a[j], arcs[j], w)))
                 .fold(0.0f32, f32::max)
         };
         assert!(
@@ -1461,9 +1456,9 @@ mod frame_arc_tests {
             assert!(widest < 10f32.to_radians(), "{widest} rad apart at {w}");
         }
         for j in 0..4 {
-            assert!(apart(at(a[j], arcs[j], 0.0), a[j]) < 2e-3);
+            assert!(at(a[j], arcs[j], 0.0).angle_between(a[j]) < 2e-3);
             assert!(
-                apart(at(a[j], arcs[j], 1.0), b[j]) < 2e-3,
+                at(a[j], arcs[j], 1.0).angle_between(b[j]) < 2e-3,
                 "sample {j} ends as b"
             );
         }

@@ -110,7 +110,7 @@ fn arc(a: Vec3, perp: Vec3, angle: f32, w: f32) -> Vec3 {
 }
 
 #[inline]
-fn arc_q(a: Quat, perp: Quat, angle: f32, w: f32) -> Quat {
+pub(crate) fn arc_q(a: Quat, perp: Quat, angle: f32, w: f32) -> Quat {
     if angle == 0.0 {
         return a;
     }

@@ -530,7 +530,7 @@ pub enum AnimationKind {
     /// `skeleton_joints` joints), with per-joint translation, rotation
     /// and scale at every sampled frame; bark and leaves are bound to
     /// their chain's joint. What the joints cannot express stays as the
-    /// fewest morph targets (at most 12) that keep every vertex within
+    /// fewest morph targets (at most 16) that keep every vertex within
     /// 1 % of the tree's height (`metrics.json` reports the error
     /// reached); leaves (quads) and bark dissolve as in `basis`.
     /// For game engines.

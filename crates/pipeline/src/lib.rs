@@ -359,7 +359,9 @@ pub enum StreamPart {
 /// - 9: a growing or wilting chain's radius never exceeds its own full
 ///   radius at that node (twigs thinner at the base than further out no
 ///   longer swell there).
-pub const RENDER_VERSION: u32 = 9;
+/// - 10: a skinned animation fits its residual at every joint scale, with
+///   up to 16 targets.
+pub const RENDER_VERSION: u32 = 10;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

@@ -2,13 +2,13 @@
 # The animated GLB of a morph, both kinds and every encoding, as the CLI
 # writes it and as three.js loads it. Prints one row per file:
 #   kind encoding bytes targets max_error write_s load_ms gpu_mb
-# (targets and max_error from metrics.json, basis only; write_s is the
+# (targets and max_error from metrics.json, basis and skinned; write_s is the
 # whole `treemorph morph --format animated` run; load_ms and gpu_mb from
 # tools/render/check-animated.mjs: GLTFLoader in headless Chromium, and
 # every buffer attribute plus one float morph texture per geometry).
 #
 # Usage: benches/animation.sh        Environment: SIZE (branches, default
-# 5000), FRAMES (default 60), KINDS (default "keyframes basis"), ENCODINGS
+# 5000), FRAMES (default 60), KINDS (default "keyframes basis skinned"), ENCODINGS
 # (default "float quantized meshopt"), TREEMORPH_BIN (a binary to use
 # instead of building the release one). Needs `npm ci --prefix tools/render`
 # and Chromium.
@@ -16,7 +16,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 SIZE=${SIZE:-5000}
 FRAMES=${FRAMES:-60}
-KINDS=${KINDS:-keyframes basis}
+KINDS=${KINDS:-keyframes basis skinned}
 ENCODINGS=${ENCODINGS:-float quantized meshopt}
 . benches/bin.sh
 DIR=$(mktemp -d)

@@ -144,11 +144,13 @@ const TIP_FIRST_WINDOW: f32 = 0.2;
 fn clear_of_hosts(plan: &Timed, fronts: &Fronts, chains: &mut [ChainTiming]) {
     for i in 0..chains.len() {
         let op = plan.chain_plans[i].operation;
-        let root = fronts.root[i] as usize;
-        if !matches!(op, Operation::Grow | Operation::Wilt) || plan.chains[root].parent.is_none() {
+        if !matches!(op, Operation::Grow | Operation::Wilt) {
             continue;
         }
-        let host = chains[plan.chain_plans[root].parent as usize].window;
+        let Some(host) = plan.chains[fronts.root[i] as usize].parent else {
+            continue;
+        };
+        let host = chains[host as usize].window;
         chains[i].window = if op == Operation::Wilt {
             let end = host.start().clamp(SHED[0] + TIP_FIRST_WINDOW, SHED[1]);
             Window::new(SHED[0], end)

@@ -50,8 +50,10 @@
 //! coordinates, where `v = 0` is the top row, the base is at `v = 1`).
 
 mod bounds;
+pub mod crossings;
 pub mod frame;
 pub mod geom;
+pub mod grid;
 pub mod json;
 mod model;
 mod texture;

@@ -82,19 +82,17 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub mod crossings;
 pub mod geometry;
 pub mod glb;
-mod grid;
 pub mod plausibility;
 mod sweep;
 
-pub use crossings::{CrossingMeter, SiblingCrossings};
 pub use glb::{GlbMeshes, ReadGlbError, read_glb};
 pub use plausibility::{
     FloatingLeaf, FloatingPiece, Hints, LeafLayout, MeshView, Plausibility, PlausibilityOptions,
     Report, VerifyError,
 };
+pub use treemorph_tree::crossings::{self, CrossingMeter, SiblingCrossings};
 
 #[cfg(test)]
 mod tests;

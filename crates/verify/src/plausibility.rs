@@ -9,8 +9,8 @@ use treemorph_gltf::mesh::{LeafShape, MeshBuffers};
 use treemorph_tree::{FrameTopology, NodeId};
 
 use crate::geometry::{point_triangle_sq, triangle_triangle_sq};
-use crate::grid::TriangleGrid;
 use crate::sweep::{Found, LeafQuestion, Sweep, Triangles, VertexQuestion, box_gap_sq};
+use treemorph_tree::grid::TriangleGrid;
 
 /// How the leaf mesh's vertices group into leaves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -28,7 +28,7 @@
 use glam::Vec3;
 
 use crate::geometry::point_triangle_sq;
-use crate::grid::{Occupancy, TriangleGrid};
+use treemorph_tree::grid::{Occupancy, TriangleGrid};
 
 /// A frame's visible triangles, as the check lists them.
 #[derive(Clone, Copy)]

@@ -21,10 +21,10 @@
 //! plausibility check uses for triangles ([`TriangleGrid`]), over the
 //! capsules' bounds: a collision crate would bring a physics engine.
 
+use crate::{Frame, Strands};
 use glam::Vec3;
-use treemorph_tree::{Frame, Strands};
 
-use crate::geometry::segment_segment_sq;
+use crate::geom::segment_segment_sq;
 use crate::grid::TriangleGrid;
 
 /// Pairs of pieces touching per frame of a sequence, and the crossings
@@ -58,9 +58,16 @@ impl CrossingMeter {
 
     /// Measures the next frame of the sequence (`strands` its topology's).
     pub fn push(&mut self, strands: &Strands, frame: &Frame) {
-        self.collect(strands, frame);
-        let pairs = self.touching();
+        let pairs = self.touching_pairs(strands, frame);
         self.frames.push(pairs);
+    }
+
+    /// The sorted piece pairs touching in `frame`, without measuring it as
+    /// part of the sequence: for callers that measure frames in parallel,
+    /// one meter (its buffers) per thread.
+    pub fn touching_pairs(&mut self, strands: &Strands, frame: &Frame) -> Vec<(u32, u32)> {
+        self.collect(strands, frame);
+        self.touching()
     }
 
     /// Per frame measured: how many piece pairs touch in it and in
@@ -100,7 +107,7 @@ impl CrossingMeter {
 
     /// The crossings ([`CrossingMeter::crossing_pairs`]) between two
     /// pieces of one parent piece, `parents` giving each piece's parent
-    /// piece (as [`treemorph_tree::FrameTopology::strand_parents`] does):
+    /// piece (as [`crate::FrameTopology::strand_parents`] does):
     /// limbs of one branch passing through each other, which the morph's
     /// matching is meant to avoid, apart from limbs of one subtree
     /// swinging through another's.

@@ -392,6 +392,20 @@ pub struct MorphJobOptions {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[arg(long)]
     pub easing: Option<f32>,
+    /// `staged` only: whether branches that would still pass through one
+    /// another mid-morph are shed and regrown instead of blended (their
+    /// chains leave the matching). Default `true`; `false` keeps every
+    /// match and lets them cross. `--no-untangle` on the command line.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[arg(
+        long = "no-untangle",
+        help = "Keep every chain match, even those whose branches pass through one another \
+                mid-morph, instead of shedding and regrowing them (staged only)",
+        num_args = 0,
+        default_missing_value = "false",
+        value_parser = clap::value_parser!(bool)
+    )]
+    pub untangle: Option<bool>,
 }
 
 /// When the operations of a morph or a sketch happen.

@@ -173,6 +173,7 @@ mod tests {
             "0.2",
             "--easing",
             "0.1",
+            "--no-untangle",
         ])
         .unwrap();
         assert_eq!(
@@ -188,6 +189,7 @@ mod tests {
                 schedule: ScheduleKind::Linear,
                 stagger: Some(0.2),
                 easing: Some(0.1),
+                untangle: Some(false),
             }
         );
         assert!(Flags::try_parse_from(["t", "--no-slow-down", "true"]).is_err());

@@ -10,7 +10,7 @@ use treemorph_analysis::{Analysis, ChainId};
 use treemorph_tree::geom::NONE;
 use treemorph_tree::{Frame, FrameLeafTopology, FrameTopology, NodeId, Strands, Tree};
 
-use crate::correspondence::{Correspondence, Input, LeafMatch, Operation, correspond};
+use crate::correspondence::{Correspondence, Excluded, Input, LeafMatch, Operation, correspond};
 use crate::error::{MorphError, Side};
 use crate::morpher::{Morpher, fraction, locate};
 use crate::options::{LeafMorph, MorphOptions, ScheduleKind};
@@ -622,28 +622,16 @@ impl MorphPlan {
         check_analysis(source, source_analysis, Side::Source)?;
         check_analysis(target, target_analysis, Side::Target)?;
         let heights = [tree_height(source), tree_height(target)];
-        let source_input = Input::new(source, source_analysis, heights[0]);
-        let target_input = Input::new(target, target_analysis, heights[1]);
-        let mut correspondence = correspond(&source_input, &target_input, options);
-        // The random-leaf baseline keeps its copies: it is the paper's
-        // Figure 11 as published.
-        if options.schedule.kind == ScheduleKind::Staged
-            && options.leaf_morph == LeafMorph::OnChains
-        {
-            separate_copies(&mut correspondence.leaves);
-        }
-        let mut plan = build(
-            &source_input,
-            &target_input,
-            correspondence,
-            options,
-            heights,
-        )?;
+        let inputs = [
+            Input::new(source, source_analysis, heights[0]),
+            Input::new(target, target_analysis, heights[1]),
+        ];
+        let mut plan = plan_excluding(&inputs, options, heights, &Excluded::default())?;
         if options.schedule.kind == ScheduleKind::Staged {
-            if options.route_round {
-                crate::routing::route(&mut plan);
-            }
             plan.schedule.pace = pace(&plan, options.schedule.easing);
+            if options.untangle {
+                plan = untangled(plan, &inputs, options, heights)?;
+            }
         }
         plan.endpoint = plan.measure_endpoints(source, target);
         Ok(plan)
@@ -689,6 +677,59 @@ impl MorphPlan {
             target: errors[1],
         }
     }
+}
+
+/// `plan` with its crossing blends shed and regrown (see `untangle`),
+/// paced again when anything changed. Each round is played on the first
+/// plan's pace: the pace moves the instants a job's frames show, so a
+/// pass the even instants miss would still show in a job.
+fn untangled(
+    mut plan: MorphPlan,
+    inputs: &[Input; 2],
+    options: &MorphOptions,
+    heights: [f32; 2],
+) -> Result<MorphPlan, MorphError> {
+    let first_pace = plan.schedule.pace.clone();
+    let mut excluded = Excluded::default();
+    for _ in 0..crate::untangle::ROUNDS {
+        let victims = crate::untangle::victims(&plan);
+        if victims.is_empty() {
+            break;
+        }
+        for (side, c) in victims {
+            excluded.add(side, c, inputs[side].analysis.chains().len());
+        }
+        plan = plan_excluding(inputs, options, heights, &excluded)?;
+        plan.schedule.pace = first_pace.clone();
+    }
+    if excluded.chains.iter().any(|c| !c.is_empty()) {
+        // The pace measures the motion as the plan plays it: unpaced.
+        plan.schedule.pace = None;
+        plan.schedule.pace = pace(&plan, options.schedule.easing);
+    }
+    Ok(plan)
+}
+
+/// Matches and builds the plan with `excluded` chains left out of the
+/// matching, then routes a staged one; the caller paces it and measures
+/// its endpoint error.
+fn plan_excluding(
+    [source, target]: &[Input; 2],
+    options: &MorphOptions,
+    heights: [f32; 2],
+    excluded: &Excluded,
+) -> Result<MorphPlan, MorphError> {
+    let mut correspondence = correspond(source, target, options, excluded);
+    // The random-leaf baseline keeps its copies: it is the paper's
+    // Figure 11 as published.
+    if options.schedule.kind == ScheduleKind::Staged && options.leaf_morph == LeafMorph::OnChains {
+        separate_copies(&mut correspondence.leaves);
+    }
+    let mut plan = build(source, target, correspondence, options, heights)?;
+    if options.schedule.kind == ScheduleKind::Staged && options.route_round {
+        crate::routing::route(&mut plan);
+    }
+    Ok(plan)
 }
 
 /// Builds the plan of `source` → `target` from their correspondence (§6);

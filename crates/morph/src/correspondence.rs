@@ -372,8 +372,37 @@ struct Star {
 /// Group pairs above which a block's costs are computed with rayon.
 const PARALLEL_BLOCK: usize = 1024;
 
-/// Builds every correspondence.
-pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Correspondence {
+/// Chains kept out of the matching: each wilts (source side) or grows
+/// (target side) with its whole substructure. The untangling step fills it
+/// with chains whose blends cross (`untangle`).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Excluded {
+    /// Per side, per chain: excluded when true (an empty list excludes
+    /// nothing).
+    pub chains: [Vec<bool>; 2],
+}
+
+impl Excluded {
+    /// Whether chain `c` of side `side` (0 source, 1 target) is excluded.
+    pub fn has(&self, side: usize, c: ChainId) -> bool {
+        self.chains[side].get(c as usize).copied().unwrap_or(false)
+    }
+
+    /// Excludes chain `c` of side `side` of a tree with `chains` chains.
+    pub fn add(&mut self, side: usize, c: ChainId, chains: usize) {
+        let marks = &mut self.chains[side];
+        marks.resize(chains, false);
+        marks[c as usize] = true;
+    }
+}
+
+/// Builds every correspondence, `excluded` chains left out of it.
+pub(crate) fn correspond(
+    s: &Input,
+    t: &Input,
+    options: &MorphOptions,
+    excluded: &Excluded,
+) -> Correspondence {
     let sa = s.analysis;
     let ta = t.analysis;
     let mut out = Correspondence::default();
@@ -391,8 +420,11 @@ pub(crate) fn correspond(s: &Input, t: &Input, options: &MorphOptions) -> Corres
     while let Some([gs, gt]) = queue.pop_front() {
         out.groups.push([gs, gt]);
         // Rule 3: chains are matched only inside matched groups.
-        let cs = &sa.group(gs).chains;
-        let ct = &ta.group(gt).chains;
+        let (cs, ct) = (
+            kept(sa, gs, 0, excluded, &mut src_unmatched),
+            kept(ta, gt, 1, excluded, &mut tgt_unmatched),
+        );
+        let (cs, ct) = (cs.as_slice(), ct.as_slice());
         let pairs = match_chains(s, t, (cs, ct), options, &mut candidates);
         let mut src_partners = vec![0u32; cs.len()];
         let mut tgt_partners = vec![0u32; ct.len()];
@@ -558,6 +590,26 @@ fn match_chains(
     }
     let one_to_many = options.chain_matching == ChainMatching::OneToMany;
     greedy(candidates, cs.len(), ct.len(), one_to_many)
+}
+
+/// The chains of group `g` of side `side` that are not excluded; the
+/// excluded ones are marked unmatched with their substructure.
+fn kept(
+    analysis: &Analysis,
+    g: GroupId,
+    side: usize,
+    excluded: &Excluded,
+    unmatched: &mut [bool],
+) -> Vec<ChainId> {
+    let mut kept = Vec::with_capacity(analysis.group(g).chains.len());
+    for &c in &analysis.group(g).chains {
+        if excluded.has(side, c) {
+            mark_substructure(analysis, c, unmatched);
+        } else {
+            kept.push(c);
+        }
+    }
+    kept
 }
 
 /// Marks a chain and its whole substructure.

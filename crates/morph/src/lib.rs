@@ -44,7 +44,10 @@
 //!   (see `schedule.rs` for the choices). A staged plan also routes limbs
 //!   round the siblings they would pass through and lifts junctions that
 //!   slide past a sibling's off the parent's axis
-//!   ([`MorphOptions::route_round`]; `routing.rs`).
+//!   ([`MorphOptions::route_round`]; `routing.rs`). Blends that still
+//!   pass through other branches after that are shed and regrown
+//!   instead: their chains leave the matching
+//!   ([`MorphOptions::untangle`]; `untangle.rs`).
 //! - **MTSW** (§7): maximum main-trunk support weight, the pipe-model
 //!   measure of how smoothly the weight of a crown moves between trunks.
 //!
@@ -308,6 +311,7 @@ mod plan;
 mod routing;
 mod schedule;
 mod staging;
+mod untangle;
 
 pub use assignment::{FORBIDDEN, match_or_leave};
 pub use correspondence::{ChainMatch, Correspondence, LeafMatch, Operation};

@@ -187,6 +187,10 @@ pub struct MorphOptions {
     /// each other stand off the parent's axis (`routing.rs`; default
     /// true).
     pub route_round: bool,
+    /// Staged: a blend that still passes through another branch is shed
+    /// and regrown instead, its chains taken out of the matching
+    /// (`untangle.rs`; default true).
+    pub untangle: bool,
     /// Union nodes plus leaves above which a frame is computed with rayon
     /// (default 20,000); smaller trees run on the calling thread.
     pub parallel_threshold: usize,
@@ -204,6 +208,7 @@ impl Default for MorphOptions {
             slow_down: true,
             schedule: ScheduleOptions::default(),
             route_round: true,
+            untangle: true,
             parallel_threshold: 20_000,
         }
     }
@@ -255,6 +260,11 @@ impl MorphOptions {
             route_round,
             ..self
         }
+    }
+
+    /// These options with untangling crossing blends on or off.
+    pub fn with_untangle(self, untangle: bool) -> MorphOptions {
+        MorphOptions { untangle, ..self }
     }
 
     /// These options with another schedule.

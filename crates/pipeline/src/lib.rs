@@ -361,7 +361,9 @@ pub enum StreamPart {
 ///   longer swell there).
 /// - 10: a skinned animation fits its residual at every joint scale, with
 ///   up to 16 targets.
-pub const RENDER_VERSION: u32 = 10;
+/// - 11: a staged morph sheds and regrows the blends that still pass
+///   through other branches (`treemorph_morph::MorphOptions::untangle`).
+pub const RENDER_VERSION: u32 = 11;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

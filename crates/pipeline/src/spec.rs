@@ -265,6 +265,9 @@ pub fn morph_options(o: &MorphJobOptions) -> MorphOptions {
     if let Some(slow_down) = o.slow_down {
         options = options.with_slow_down(slow_down);
     }
+    if let Some(untangle) = o.untangle {
+        options = options.with_untangle(untangle);
+    }
     options.schedule = schedule(o.schedule, o.stagger, o.easing);
     options
 }

@@ -85,6 +85,7 @@ fn morph_options_compose_instead_of_overwriting() {
         matching: Matching::OneToOne,
         leaves: LeafAssignment::Random,
         slow_down: Some(false),
+        untangle: Some(false),
         ..MorphJobOptions::default()
     };
     let JobSpec::Morph(spec) = JobSpec::parse(&morph(5, options), &Limits::default()).unwrap()
@@ -94,7 +95,8 @@ fn morph_options_compose_instead_of_overwriting() {
     let want = MorphOptions::default()
         .with_chain_matching(ChainMatching::OneToOne)
         .with_leaf_morph(LeafMorph::RandomLinear { seed: 0 })
-        .with_slow_down(false);
+        .with_slow_down(false)
+        .with_untangle(false);
     assert_eq!(spec.options, want);
 }
 

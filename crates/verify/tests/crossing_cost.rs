@@ -1,7 +1,9 @@
-//! The morph's crossing cost (`treemorph_morph`'s `crossing.rs`) and its
-//! routing round siblings (`routing.rs`) measured where they matter: the
-//! crossings of the frames themselves, by [`CrossingMeter`], with each on
-//! (default) and off.
+//! The morph's crossing cost (`treemorph_morph`'s `crossing.rs`), its
+//! routing round siblings (`routing.rs`) and its untangling
+//! (`untangle.rs`) measured where they matter: the crossings of the frames
+//! themselves, by [`CrossingMeter`], with each on (default) and off. The
+//! cost and the routing are measured with untangling off, which sheds
+//! whatever crossings they leave.
 
 use treemorph_analysis::{Analysis, AnalysisOptions};
 use treemorph_generate::{GenerateOptions, Preset, generate};
@@ -47,11 +49,12 @@ fn crossings(a: (Preset, u64), b: (Preset, u64), size: u32, options: &MorphOptio
 
 #[test]
 fn the_crossing_cost_lowers_the_crossings_of_the_written_frames() {
-    let mut off = MorphOptions::default();
+    let on = MorphOptions::default().with_untangle(false);
+    let mut off = on.clone();
     off.group_weights.crossing = 0.0;
     let pair = ((Preset::Conifer, 2), (Preset::Willow, 3));
     let without = crossings(pair.0, pair.1, 1500, &off);
-    let with = crossings(pair.0, pair.1, 1500, &MorphOptions::default());
+    let with = crossings(pair.0, pair.1, 1500, &on);
     eprintln!(
         "conifer → willow, 1,500 branches: crossings (sum, most in a frame) {without:?} without the cost, {with:?} with it"
     );
@@ -67,7 +70,8 @@ fn the_crossing_cost_lowers_the_crossings_of_the_written_frames() {
 /// crossing or two either way).
 #[test]
 fn routing_round_siblings_lowers_their_crossings_in_the_written_frames() {
-    let off = MorphOptions::default().with_route_round(false);
+    let on = MorphOptions::default().with_untangle(false);
+    let off = on.clone().with_route_round(false);
     for (a, b) in [
         ((Preset::Maple, 1), (Preset::Conifer, 2)),
         ((Preset::Willow, 3), (Preset::Eucalyptus, 4)),
@@ -75,16 +79,44 @@ fn routing_round_siblings_lowers_their_crossings_in_the_written_frames() {
         ((Preset::Shrub, 5), (Preset::Maple, 1)),
     ] {
         let without = measure(a, b, 1500, &off);
-        let with = measure(a, b, 1500, &MorphOptions::default());
+        let with = measure(a, b, 1500, &on);
         eprintln!("{a:?} → {b:?}: (all, siblings) {without:?} without routing, {with:?} with it");
     }
     let pair = ((Preset::Conifer, 2), (Preset::Willow, 3));
     let without = measure(pair.0, pair.1, 1500, &off);
-    let with = measure(pair.0, pair.1, 1500, &MorphOptions::default());
+    let with = measure(pair.0, pair.1, 1500, &on);
     eprintln!("conifer → willow: (all, siblings) {without:?} without routing, {with:?} with it");
     assert!(with.0.0 < without.0.0, "{with:?} against {without:?}");
     assert!(
         with.1.0 < without.1.0 && with.1.1 < without.1.1,
         "{with:?} against {without:?}"
+    );
+}
+
+/// Untangling on the five preset pairs at 1,500 branches, at instants the
+/// planner does not sample (`i / 24` against its `k / 64`).
+#[test]
+fn untangling_sheds_the_crossings_of_the_written_frames() {
+    let off = MorphOptions::default().with_untangle(false);
+    let mut most = (0, 0);
+    for (a, b) in [
+        ((Preset::Maple, 1), (Preset::Conifer, 2)),
+        ((Preset::Conifer, 2), (Preset::Willow, 3)),
+        ((Preset::Willow, 3), (Preset::Eucalyptus, 4)),
+        ((Preset::Eucalyptus, 4), (Preset::Shrub, 5)),
+        ((Preset::Shrub, 5), (Preset::Maple, 1)),
+    ] {
+        let without = crossings(a, b, 1500, &off);
+        let with = crossings(a, b, 1500, &MorphOptions::default());
+        eprintln!(
+            "{a:?} → {b:?}: crossings (sum, most in a frame) {without:?} tangled, {with:?} untangled"
+        );
+        most = (most.0 + without.1, most.1 + with.1);
+    }
+    assert!(
+        most.1 * 4 <= most.0,
+        "most in a frame, summed: {} against {}",
+        most.1,
+        most.0
     );
 }

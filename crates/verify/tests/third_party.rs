@@ -443,14 +443,18 @@ fn skinned_cell(
 /// The largest skinned-animation error (fraction of height) accepted on
 /// a morph between trees of the two families. A regression bound, not
 /// the 1 % aim: 256 rigid joints and 16 residual targets do not follow
-/// every such morph that closely (0.6–2.4 % measured on the CI set).
+/// every such morph that closely (0.5–4.7 % measured on the CI set).
 /// Before residual targets were chosen by the error a player shows,
 /// ash-large → mt-broadleaf reached 41 %; before a residual was fitted
 /// with 12 targets when 4 miss the budget, bush-1 → mt-sparse and
 /// mt-weeping → bush-1 reached 15.8 % and 14.5 %; while the samples
 /// where a joint's scale was below 0.05 were left out of the residual's
-/// fit, the CI set was at 1.4–9.3 % (this bound was 12 %).
-const MAX_SKINNED_ERROR: f32 = 0.04;
+/// fit, the CI set was at 1.4–9.3 % (this bound was 12 %), and then at
+/// 0.6–2.4 % (4 %) until untangling shed and regrew the blends that
+/// cross: bush-1 → mt-sparse went 2.4 → 4.7 % (its twigs that wilt and
+/// those that regrow share joints; 3.5 % at 1,024 joints, 2.3 % with one
+/// per chain), while six of the ten pairs came nearer.
+const MAX_SKINNED_ERROR: f32 = 0.05;
 
 /// The error the default skinned animation (256 joints, meshopt) of the
 /// morph's 60 frames reports: measured as a player composes the file.

@@ -679,10 +679,11 @@ impl MorphPlan {
     }
 }
 
-/// `plan` with its crossing blends shed and regrown (see `untangle`),
+/// `plan` with its crossing blends shed and regrown (see `untangling`),
 /// paced again when anything changed. Each round is played on the first
-/// plan's pace: the pace moves the instants a job's frames show, so a
-/// pass the even instants miss would still show in a job.
+/// plan's pace: a job's frames are even in paced time, and the pace
+/// stretches short bursts of the schedule's clock that even unpaced
+/// instants would miss.
 fn untangled(
     mut plan: MorphPlan,
     inputs: &[Input; 2],
@@ -691,16 +692,16 @@ fn untangled(
 ) -> Result<MorphPlan, MorphError> {
     let first_pace = plan.schedule.pace.clone();
     let mut excluded = Excluded::default();
-    for _ in 0..crate::untangle::ROUNDS {
-        let victims = crate::untangle::victims(&plan);
-        if victims.is_empty() {
+    for _ in 0..crate::untangling::ROUNDS {
+        let shed = crate::untangling::to_shed(&plan);
+        if shed.is_empty() {
             break;
         }
-        for (side, c) in victims {
+        for (side, c) in shed {
             excluded.add(side, c, inputs[side].analysis.chains().len());
         }
         plan = plan_excluding(inputs, options, heights, &excluded)?;
-        plan.schedule.pace = first_pace.clone();
+        plan.schedule.pace.clone_from(&first_pace);
     }
     if excluded.chains.iter().any(|c| !c.is_empty()) {
         // The pace measures the motion as the plan plays it: unpaced.

@@ -65,7 +65,8 @@ pub struct LeafMatch {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Correspondence {
     /// Matched chain groups `[source, target]`, top-down (the root groups
-    /// first).
+    /// first). A matched pair may match none of its chains when they were
+    /// kept out of the matching (untangling): they then wilt and grow.
     pub groups: Vec<[GroupId; 2]>,
     /// Source groups left unmatched, each with its BPTT subtree (they wilt).
     pub wilting_groups: Vec<GroupId>,
@@ -374,7 +375,7 @@ const PARALLEL_BLOCK: usize = 1024;
 
 /// Chains kept out of the matching: each wilts (source side) or grows
 /// (target side) with its whole substructure. The untangling step fills it
-/// with chains whose blends cross (`untangle`).
+/// with chains whose blends cross (`untangling`).
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Excluded {
     /// Per side, per chain: excluded when true (an empty list excludes
@@ -563,7 +564,9 @@ pub(crate) fn correspond(
 }
 
 /// The union chains groups `gs` and `gt` make when matched: their chains
-/// matched as [`correspond`] matches them, as pose pairs.
+/// matched as [`correspond`] matches them with nothing excluded, as pose
+/// pairs (the crossing cost compares sibling limbs before untangling
+/// sheds any of their chains).
 fn group_swing(s: &Input, t: &Input, gs: GroupId, gt: GroupId, options: &MorphOptions) -> Swing {
     let cs = &s.analysis.group(gs).chains;
     let ct = &t.analysis.group(gt).chains;

@@ -47,7 +47,7 @@
 //!   ([`MorphOptions::route_round`]; `routing.rs`). Blends that still
 //!   pass through other branches after that are shed and regrown
 //!   instead: their chains leave the matching
-//!   ([`MorphOptions::untangle`]; `untangle.rs`).
+//!   ([`MorphOptions::untangle`]; `untangling.rs`).
 //! - **MTSW** (§7): maximum main-trunk support weight, the pipe-model
 //!   measure of how smoothly the weight of a crown moves between trunks.
 //!
@@ -311,7 +311,7 @@ mod plan;
 mod routing;
 mod schedule;
 mod staging;
-mod untangle;
+mod untangling;
 
 pub use assignment::{FORBIDDEN, match_or_leave};
 pub use correspondence::{ChainMatch, Correspondence, LeafMatch, Operation};

@@ -189,7 +189,7 @@ pub struct MorphOptions {
     pub route_round: bool,
     /// Staged: a blend that still passes through another branch is shed
     /// and regrown instead, its chains taken out of the matching
-    /// (`untangle.rs`; default true).
+    /// (`untangling.rs`; default true).
     pub untangle: bool,
     /// Union nodes plus leaves above which a frame is computed with rayon
     /// (default 20,000); smaller trees run on the calling thread.

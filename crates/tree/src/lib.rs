@@ -37,7 +37,11 @@
 //! - **grow / wilt / split / merge / morph** — the operations that carry a
 //!   chain from the source tree to the target tree.
 //! - **frame** — one in-between tree of an animation, in a **union topology**
-//!   shared by every frame of the sequence ([`frame`]).
+//!   shared by every frame of the sequence ([`frame`]). A frame's branches
+//!   **cross** when their tubes pass through each other there and at
+//!   neither end of the sequence ([`crossings`], with the spatial hash in
+//!   [`grid`]): the morph planner and the output checks count them
+//!   alike.
 //!
 //! # Leaves
 //! A leaf is the papers' billboard septuple: the branch it grows on, a

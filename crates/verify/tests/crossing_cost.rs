@@ -1,6 +1,6 @@
 //! The morph's crossing cost (`treemorph_morph`'s `crossing.rs`), its
 //! routing round siblings (`routing.rs`) and its untangling
-//! (`untangle.rs`) measured where they matter: the crossings of the frames
+//! (`untangling.rs`) measured where they matter: the crossings of the frames
 //! themselves, by [`CrossingMeter`], with each on (default) and off. The
 //! cost and the routing are measured with untangling off, which sheds
 //! whatever crossings they leave.
@@ -93,8 +93,9 @@ fn routing_round_siblings_lowers_their_crossings_in_the_written_frames() {
     );
 }
 
-/// Untangling on the five preset pairs at 1,500 branches, at instants the
-/// planner does not sample (`i / 24` against its `k / 64`).
+/// Untangling on the five preset pairs at 1,500 branches, measured at
+/// `i / 24`, mostly between the instants the planner plays (`k / 64` on
+/// a pace that the last round changes).
 #[test]
 fn untangling_sheds_the_crossings_of_the_written_frames() {
     let off = MorphOptions::default().with_untangle(false);

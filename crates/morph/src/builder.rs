@@ -703,7 +703,7 @@ fn untangled(
         plan = plan_excluding(inputs, options, heights, &excluded)?;
         plan.schedule.pace.clone_from(&first_pace);
     }
-    if excluded.chains.iter().any(|c| !c.is_empty()) {
+    if !excluded.is_empty() {
         // The pace measures the motion as the plan plays it: unpaced.
         plan.schedule.pace = None;
         plan.schedule.pace = pace(&plan, options.schedule.easing);

@@ -105,6 +105,7 @@ pub(crate) fn to_shed(plan: &MorphPlan) -> Vec<(usize, ChainId)> {
 /// instants and at neither end, each once.
 fn crossing_pairs(plan: &MorphPlan) -> Vec<(u32, u32)> {
     let strands = &plan.topology.strands;
+    // Each sample on its own meter in parallel, joined in order on one.
     let touching: Vec<Vec<(u32, u32)>> = (0..SAMPLES)
         .into_par_iter()
         .map_init(
@@ -116,13 +117,11 @@ fn crossing_pairs(plan: &MorphPlan) -> Vec<(u32, u32)> {
             },
         )
         .collect();
-    let (first, last) = (&touching[0], &touching[SAMPLES - 1]);
-    let mut pairs: Vec<(u32, u32)> = touching[1..SAMPLES - 1]
-        .iter()
-        .flatten()
-        .copied()
-        .filter(|p| first.binary_search(p).is_err() && last.binary_search(p).is_err())
-        .collect();
+    let mut meter = CrossingMeter::new();
+    for pairs in touching {
+        meter.push_touching(pairs);
+    }
+    let mut pairs: Vec<(u32, u32)> = (0..SAMPLES).flat_map(|i| meter.crossing_pairs(i)).collect();
     pairs.sort_unstable();
     pairs.dedup();
     pairs

@@ -59,6 +59,13 @@ impl CrossingMeter {
     /// Measures the next frame of the sequence (`strands` its topology's).
     pub fn push(&mut self, strands: &Strands, frame: &Frame) {
         let pairs = self.touching_pairs(strands, frame);
+        self.push_touching(pairs);
+    }
+
+    /// Measures the next frame of the sequence from its touching pairs,
+    /// as [`CrossingMeter::touching_pairs`] gave them (on this meter or
+    /// another): frames measured in parallel, then joined in order.
+    pub fn push_touching(&mut self, pairs: Vec<(u32, u32)>) {
         self.frames.push(pairs);
     }
 

@@ -17,7 +17,7 @@ use crate::options::{LeafMorph, MorphOptions, ScheduleKind};
 use crate::plan::{
     ChainPlan, EndpointError, LeafMode, LeafPlan, MorphPlan, NodeOrigin, Sample, UnionChain,
 };
-use crate::staging::{Timed, pace, schedule, separate_copies};
+use crate::staging::{Timed, coarse_pace, pace, refined_pace, schedule, separate_copies};
 
 /// The chain data the plan reads, copied from the analysis in one
 /// sequential pass into concatenated arrays: the build visits chains in
@@ -628,9 +628,10 @@ impl MorphPlan {
         ];
         let mut plan = plan_excluding(&inputs, options, heights, &Excluded::default())?;
         if options.schedule.kind == ScheduleKind::Staged {
-            plan.schedule.pace = pace(&plan, options.schedule.easing);
             if options.untangle {
                 plan = untangled(plan, &inputs, options, heights)?;
+            } else {
+                plan.schedule.pace = pace(&plan, options.schedule.easing);
             }
         }
         plan.endpoint = plan.measure_endpoints(source, target);
@@ -679,19 +680,25 @@ impl MorphPlan {
     }
 }
 
-/// `plan` with its crossing blends shed and regrown (see `untangling`),
-/// paced again when anything changed. Each round is played on the first
-/// plan's pace: a job's frames are even in paced time, and the pace
-/// stretches short bursts of the schedule's clock that even unpaced
-/// instants would miss.
+/// `plan` with its crossing blends shed and regrown (see `untangling`).
+/// Each round's plan is paced on its own motion before it is played: the
+/// sweep between two instants takes every node on a straight line, which
+/// is the motion to within its bow only where the instants are close,
+/// and an even pace keeps them close everywhere (on the first plan's pace
+/// a later plan's bursts fell between far instants, and a twig passing
+/// the trunk in one was missed). The rounds' paces are coarse (no
+/// refinement of concentrated motion); the plan that comes out is paced
+/// in full, as [`pace`] paces it.
 fn untangled(
     mut plan: MorphPlan,
     inputs: &[Input; 2],
     options: &MorphOptions,
     heights: [f32; 2],
 ) -> Result<MorphPlan, MorphError> {
-    let first_pace = plan.schedule.pace.clone();
+    let easing = options.schedule.easing;
     let mut excluded = Excluded::default();
+    let (mut coarse, mut concentrated) = coarse_pace(&plan, easing);
+    plan.schedule.pace = coarse;
     for _ in 0..crate::untangling::ROUNDS {
         let shed = crate::untangling::to_shed(&plan);
         if shed.is_empty() {
@@ -701,12 +708,13 @@ fn untangled(
             excluded.add(side, c, inputs[side].analysis.chains().len());
         }
         plan = plan_excluding(inputs, options, heights, &excluded)?;
-        plan.schedule.pace.clone_from(&first_pace);
+        (coarse, concentrated) = coarse_pace(&plan, easing);
+        plan.schedule.pace = coarse;
     }
-    if !excluded.is_empty() {
+    if concentrated {
         // The pace measures the motion as the plan plays it: unpaced.
         plan.schedule.pace = None;
-        plan.schedule.pace = pace(&plan, options.schedule.easing);
+        plan.schedule.pace = refined_pace(&plan, easing);
     }
     Ok(plan)
 }

@@ -389,11 +389,6 @@ impl Excluded {
         self.chains[side].get(c as usize).copied().unwrap_or(false)
     }
 
-    /// Whether nothing is excluded.
-    pub fn is_empty(&self) -> bool {
-        self.chains.iter().all(|marks| !marks.contains(&true))
-    }
-
     /// Excludes chain `c` of side `side` of a tree with `chains` chains.
     pub fn add(&mut self, side: usize, c: ChainId, chains: usize) {
         let marks = &mut self.chains[side];

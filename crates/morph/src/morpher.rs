@@ -127,8 +127,7 @@ fn junction(
     inv_span: &[f32],
     root: Vec3,
     w: f32,
-    done_pos: &[Vec3],
-    done_frames: &[Quat],
+    done: Done,
 ) -> (Vec3, Quat) {
     if chain.parent == NONE {
         return (root, Quat::IDENTITY);
@@ -141,19 +140,100 @@ fn junction(
     point_frame(
         pu,
         &inv_span[pf..pf + pk],
-        &done_pos[1 + pf..1 + pf + pk],
-        &done_frames[pf..pf + pk],
+        &done.pos[1 + pf..1 + pf + pk],
+        &done.frames[pf..pf + pk],
         segment(pu, p, lo as usize, hi as usize),
         p,
     )
 }
 
-/// The output slices of one chain: positions, radii and frames of its
-/// nodes.
+/// What the levels above a chain's wrote: positions and radii by node,
+/// frames and seals by sample.
+#[derive(Clone, Copy)]
+struct Done<'a> {
+    pos: &'a [Vec3],
+    rad: &'a [f32],
+    frames: &'a [Quat],
+    seals: &'a [Seal],
+}
+
+/// The ball a node lies sealed in, inside an ancestor's tube, when its
+/// chain is not drawn for that ([`undraw_if_sealed`]): centre and radius,
+/// radius 0 when it is not sealed.
+type Seal = (Vec3, f32);
+
+/// The ball about a chain's junction at union parameter `p` of its
+/// parent, centred at `centre` on the parent's axis, that lies inside its
+/// ancestors' tubes: the parent's radius there, or the ball the parent is
+/// sealed in when it is ([`Seal`]); `None` for a root chain.
+#[inline]
+fn enclosure(
+    chain: &ChainPlan,
+    (u, inv_span): (&[f32], &[f32]),
+    p: f32,
+    centre: Vec3,
+    done: Done,
+) -> Option<Seal> {
+    if chain.parent == NONE {
+        return None;
+    }
+    let (pf, pk) = (chain.parent_first as usize, chain.parent_len as usize);
+    let pu = &u[pf..pf + pk];
+    let [lo, hi] = chain.parent_segments;
+    let j = segment(pu, p, lo as usize, hi as usize);
+    let seal = done.seals[pf + j];
+    if seal.1 > 0.0 {
+        return Some(seal);
+    }
+    let f = fraction(pu, &inv_span[pf..pf + pk], j, p);
+    let r = &done.rad[1 + pf..1 + pf + pk];
+    Some((centre, r[j] + (r[j + 1] - r[j]) * f))
+}
+
+/// Undraws a chain (radius 0) whose tube lies inside `ball`, the ball
+/// about its junction inside its ancestors' tubes ([`enclosure`]), and
+/// marks its nodes sealed in it (so that its children are measured
+/// against the same ball); marks them unsealed otherwise. A twig retracted
+/// into a thick limb, or a stub whose junction slides up a thick trunk,
+/// would otherwise be a tube sealed in the limb, where it passes through
+/// the stubs of its siblings and cousins and floats on no surface.
+#[inline]
+fn undraw_if_sealed(ball: Option<Seal>, out: ChainOut) {
+    let ChainOut {
+        pos, rad, seals, ..
+    } = out;
+    let inside = ball.filter(|&(centre, radius)| {
+        let mut nodes = pos.iter().zip(rad.iter());
+        radius > 0.0 && nodes.all(|(p, r)| p.distance(centre) + r <= radius)
+    });
+    match inside {
+        Some(ball) => {
+            rad.fill(0.0);
+            seals.fill(ball);
+        }
+        None => seals.fill((Vec3::ZERO, 0.0)),
+    }
+}
+
+/// The output slices of one chain: positions, radii, frames and seals of
+/// its nodes.
 struct ChainOut<'a> {
     pos: &'a mut [Vec3],
     rad: &'a mut [f32],
     frames: &'a mut [Quat],
+    seals: &'a mut [Seal],
+}
+
+impl ChainOut<'_> {
+    /// The same slices, for a call that does not take them over.
+    fn reborrow(&mut self) -> ChainOut<'_> {
+        ChainOut {
+            pos: &mut *self.pos,
+            rad: &mut *self.rad,
+            frames: &mut *self.frames,
+            seals: &mut *self.seals,
+        }
+    }
 }
 
 /// Morphs one chain: its junction on the parent at the interpolated growth
@@ -166,11 +246,10 @@ fn morph_chain(
     u: &[f32],
     inv_span: &[f32],
     root: Vec3,
-    (slow_down, reshape): (bool, f32),
+    (slow_down, reshape, inner): (bool, f32, bool),
     state: ChainState,
-    done_pos: &[Vec3],
-    done_frames: &[Quat],
-    out: ChainOut,
+    done: Done,
+    mut out: ChainOut,
 ) {
     let first = chain.first as usize;
     let k = chain.len as usize;
@@ -178,18 +257,28 @@ fn morph_chain(
     let own_u = &u[first..first + k];
     match state {
         ChainState::Blend(w) => {
-            let at = junction(chain, u, inv_span, root, w, done_pos, done_frames);
-            blend_chain(chain, own, own_u, slow_down, w, at, out);
+            let at = junction(chain, u, inv_span, root, w, done);
+            let p = chain.p[0] + (chain.p[1] - chain.p[0]) * w;
+            // The ends are the inputs', sealed stubs and all.
+            let ball = inner
+                .then(|| enclosure(chain, (u, inv_span), p, at.0, done))
+                .flatten();
+            blend_chain(chain, own, own_u, (slow_down, w), at, out.reborrow());
+            undraw_if_sealed(ball, out);
         }
         ChainState::Reach(reach) => {
-            let (at, anchor) = junction(chain, u, inv_span, root, 0.0, done_pos, done_frames);
+            let (at, anchor) = junction(chain, u, inv_span, root, 0.0, done);
             let side = usize::from(chain.operation == Operation::Grow);
             let jr = chain.junction_radius[side];
+            let ball = inner
+                .then(|| enclosure(chain, (u, inv_span), chain.p[side], at, done))
+                .flatten();
             // A wilting chain that a sibling's junction passes stands off
             // the axis on the reshape's clock, while the sibling moves.
             let leaves = arc(own[0].dir, own[0].dir_perp, own[0].theta, side as f32);
             let at = at + anchor * lifted(chain.lift, leaves, reshape);
-            tip_first(own, side, (reach, jr), (at, anchor), out);
+            tip_first(own, side, (reach, jr), (at, anchor), out.reborrow());
+            undraw_if_sealed(ball, out);
         }
     }
 }
@@ -201,12 +290,13 @@ fn blend_chain(
     chain: &ChainPlan,
     own: &[Sample],
     own_u: &[f32],
-    slow_down: bool,
-    w: f32,
+    (slow_down, w): (bool, f32),
     (junction, anchor): (Vec3, Quat),
     out: ChainOut,
 ) {
-    let ChainOut { pos, rad, frames } = out;
+    let ChainOut {
+        pos, rad, frames, ..
+    } = out;
     let k = own.len();
     let op = chain.operation;
     // The lifted junction turns with the chain: routing models the detour
@@ -283,7 +373,9 @@ fn tip_first(
     (junction, anchor): (Vec3, Quat),
     out: ChainOut,
 ) {
-    let ChainOut { pos, rad, frames } = out;
+    let ChainOut {
+        pos, rad, frames, ..
+    } = out;
     let k = own.len();
     let w = side as f32;
     pos[0] = junction;
@@ -350,17 +442,23 @@ fn morph_chains(
     index: usize,
     base: usize,
     t: Paced,
-    done: (&[Vec3], &[Quat]),
+    done: Done,
     out: ChainOut,
     parallel: bool,
 ) {
-    let ChainOut { pos, rad, frames } = out;
+    let ChainOut {
+        pos,
+        rad,
+        frames,
+        seals,
+    } = out;
     if parallel && chains.len() > CHAINS_PER_TASK {
         let mid = chains.len() / 2;
         let split = chains[mid].first as usize - base;
         let (pl, pr) = pos.split_at_mut(split);
         let (rl, rr) = rad.split_at_mut(split);
         let (fl, fr) = frames.split_at_mut(split);
+        let (sl, sr) = seals.split_at_mut(split);
         let (left, right) = (&chains[..mid], &chains[mid..]);
         rayon::join(
             || {
@@ -368,6 +466,7 @@ fn morph_chains(
                     pos: pl,
                     rad: rl,
                     frames: fl,
+                    seals: sl,
                 };
                 morph_chains(plan, left, index, base, t, done, out, true)
             },
@@ -376,6 +475,7 @@ fn morph_chains(
                     pos: pr,
                     rad: rr,
                     frames: fr,
+                    seals: sr,
                 };
                 morph_chains(plan, right, index + mid, base + split, t, done, out, true)
             },
@@ -393,14 +493,14 @@ fn morph_chains(
             &plan.sample_u,
             &plan.sample_inv_span,
             root,
-            (plan.slow_down, reshape),
+            (plan.slow_down, reshape, t.inner()),
             plan.schedule.chain(index + i, t),
-            done.0,
-            done.1,
+            done,
             ChainOut {
                 pos: &mut pos[off..off + k],
                 rad: &mut rad[off..off + k],
                 frames: &mut frames[off..off + k],
+                seals: &mut seals[off..off + k],
             },
         );
     }
@@ -495,6 +595,8 @@ pub struct Morpher<'p> {
     plan: &'p MorphPlan,
     /// Frame (chain-local axes to world) of every union sample.
     frames: Vec<Quat>,
+    /// The ball every union sample lies sealed in, if any ([`Seal`]).
+    seals: Vec<Seal>,
 }
 
 impl<'p> Morpher<'p> {
@@ -503,6 +605,7 @@ impl<'p> Morpher<'p> {
         Morpher {
             plan,
             frames: vec![Quat::IDENTITY; plan.sample_u.len()],
+            seals: vec![(Vec3::ZERO, 0.0); plan.sample_u.len()],
         }
     }
 
@@ -518,13 +621,19 @@ impl<'p> Morpher<'p> {
         let t = plan.schedule.paced(frame.t);
         let root = plan.root_at(t);
         let (u, inv_span) = (&plan.sample_u, &plan.sample_inv_span);
+        let done = Done {
+            pos: &frame.positions,
+            rad: &frame.radii,
+            frames: &self.frames,
+            seals: &self.seals,
+        };
         (plan.chain_plans.iter().enumerate())
             .map(|(i, c)| {
                 let w = match plan.schedule.chain(i, t) {
                     ChainState::Blend(w) => w,
                     ChainState::Reach(_) => 0.0,
                 };
-                junction(c, u, inv_span, root, w, &frame.positions, &self.frames)
+                junction(c, u, inv_span, root, w, done)
             })
             .collect()
     }
@@ -560,23 +669,23 @@ impl<'p> Morpher<'p> {
             let last = chains.last().expect("non-empty");
             let (a, b) = (first.first as usize, (last.first + last.len) as usize);
             let (done_pos, rest_pos) = frame.positions.split_at_mut(1 + a);
+            let (done_rad, rest_rad) = frame.radii.split_at_mut(1 + a);
             let (done_frames, rest_frames) = self.frames.split_at_mut(a);
+            let (done_seals, rest_seals) = self.seals.split_at_mut(a);
+            let done = Done {
+                pos: done_pos,
+                rad: done_rad,
+                frames: done_frames,
+                seals: done_seals,
+            };
             let out = ChainOut {
                 pos: &mut rest_pos[..b - a],
-                rad: &mut frame.radii[1 + a..1 + b],
+                rad: &mut rest_rad[..b - a],
                 frames: &mut rest_frames[..b - a],
+                seals: &mut rest_seals[..b - a],
             };
             let index = level.start as usize;
-            morph_chains(
-                plan,
-                chains,
-                index,
-                a,
-                t,
-                (done_pos, done_frames),
-                out,
-                parallel,
-            );
+            morph_chains(plan, chains, index, a, t, done, out, parallel);
         }
         t
     }

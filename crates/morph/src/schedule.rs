@@ -91,6 +91,13 @@ pub(crate) const UNFOLD: f32 = 0.25;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Paced(f32);
 
+impl Paced {
+    /// Whether it lies strictly between the ends (which are the inputs).
+    pub(crate) fn inner(self) -> bool {
+        self.0 > 0.0 && self.0 < 1.0
+    }
+}
+
 /// A tip-first growing or wilting union chain's front.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Front {

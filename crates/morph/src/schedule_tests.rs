@@ -14,6 +14,21 @@ fn tree(preset: Preset, seed: u64, size: u32) -> (Tree, Analysis) {
     (t, a)
 }
 
+/// A 300-branch preset tree with its nodes edited by `edit`.
+fn edited(
+    preset: Preset,
+    seed: u64,
+    edit: impl Fn(&mut [treemorph_tree::Node]),
+) -> (Tree, Analysis) {
+    let mut parts = generate(&GenerateOptions::new(preset, seed).with_size(300))
+        .unwrap()
+        .into_parts();
+    edit(&mut parts.nodes);
+    let t = Tree::new(parts, &treemorph_tree::Limits::default()).unwrap();
+    let a = Analysis::of(&t, &AnalysisOptions::default()).unwrap();
+    (t, a)
+}
+
 /// A conifer into a maple: chains grow, wilt, split and merge.
 fn staged_plan() -> MorphPlan {
     let (a, b) = (tree(Preset::Conifer, 5, 300), tree(Preset::Maple, 6, 300));
@@ -161,29 +176,23 @@ fn tip_first_subtrees_keep_off_their_hosts_reshape() {
 /// rest (Modular Tree's bushy tree into ez-tree's oak).
 #[test]
 fn tip_first_chains_never_swell_past_their_full_radii() {
-    let thin_based = |preset, seed| {
-        let mut parts = generate(&GenerateOptions::new(preset, seed).with_size(300))
-            .unwrap()
-            .into_parts();
-        let mut children = vec![0u32; parts.nodes.len()];
-        for n in &parts.nodes {
+    let thin_based = |nodes: &mut [treemorph_tree::Node]| {
+        let mut children = vec![0u32; nodes.len()];
+        for n in nodes.iter() {
             if let Some(p) = n.parent {
                 children[p as usize] += 1;
             }
         }
-        for i in 0..parts.nodes.len() {
-            if parts.nodes[i]
-                .parent
-                .is_some_and(|p| children[p as usize] > 1)
-            {
-                parts.nodes[i].radius /= 20.0;
+        for n in nodes.iter_mut() {
+            if n.parent.is_some_and(|p| children[p as usize] > 1) {
+                n.radius /= 20.0;
             }
         }
-        let t = Tree::new(parts, &treemorph_tree::Limits::default()).unwrap();
-        let a = Analysis::of(&t, &AnalysisOptions::default()).unwrap();
-        (t, a)
     };
-    let (a, b) = (thin_based(Preset::Conifer, 5), thin_based(Preset::Maple, 6));
+    let (a, b) = (
+        edited(Preset::Conifer, 5, thin_based),
+        edited(Preset::Maple, 6, thin_based),
+    );
     let p = MorphPlan::new(&a.0, &a.1, &b.0, &b.1, &MorphOptions::default()).unwrap();
     let fs = frames(&p, 40);
     let mut checked = 0;
@@ -406,4 +415,83 @@ fn parallel_pace_runs_equal_one_sequential_run() {
     let sequential = Pace::of_moves(&moved, easing);
     assert!(sequential.is_some());
     assert_eq!(kept, sequential);
+}
+
+/// Mid-morph, a chain that fits inside its parent's tube is not drawn.
+/// Regressions, both found floating on no surface by the output-level
+/// check (a trunk thicker than its reach of 2 % of the height): a limb of
+/// ez-tree's bush-1 shed into its trunk (Modular Tree's bushy tree as the
+/// target) was drawn as a stub sealed in the trunk, and so was a stub of
+/// bush-1 blended with a limb of the bushy tree while its junction slid up
+/// the trunk.
+#[test]
+fn chains_inside_their_parents_are_not_drawn() {
+    let thick = |nodes: &mut [treemorph_tree::Node]| {
+        stub_twigs(nodes);
+        for n in nodes {
+            n.radius *= 8.0;
+        }
+    };
+    let (a, b) = (
+        edited(Preset::Conifer, 5, thick),
+        edited(Preset::Maple, 6, thick),
+    );
+    let p = MorphPlan::new(&a.0, &a.1, &b.0, &b.1, &MorphOptions::default()).unwrap();
+    let parents = &p.topology().parents;
+    let fs = frames(&p, 200);
+    let mut sealed = [0, 0];
+    for f in &fs[1..200] {
+        for c in p.chains().iter().filter(|c| c.parent.is_some()) {
+            let nodes = c.nodes.start as usize..c.nodes.end as usize;
+            let base = f.positions[nodes.start];
+            let reach = nodes
+                .clone()
+                .map(|n| f.positions[n].distance(base))
+                .fold(0.0, f32::max);
+            let radius = nodes.clone().map(|n| f.radii[n]).fold(0.0, f32::max);
+            // The parent's node the chain hangs from, a little thinner than
+            // the tube at the junction at most.
+            let host = parents[nodes.start].expect("a branch node has a parent") as usize;
+            if radius > 0.0 && reach + radius < 0.9 * f.radii[host] {
+                let tip_first = matches!(c.operation, Operation::Grow | Operation::Wilt);
+                sealed[usize::from(tip_first)] += 1;
+            }
+        }
+    }
+    assert_eq!(
+        sealed,
+        [0, 0],
+        "(blended, growing or wilting) chains drawn inside their parent, over 199 frames"
+    );
+}
+
+/// Shortens every unbranched twig that leaves a branching node to a
+/// twentieth of its length: stubs, as imported trees have.
+fn stub_twigs(nodes: &mut [treemorph_tree::Node]) {
+    let mut children = vec![0u32; nodes.len()];
+    for n in nodes.iter() {
+        if let Some(p) = n.parent {
+            children[p as usize] += 1;
+        }
+    }
+    // Parents come first: a backward pass finds the unbranched subtrees.
+    let mut path = vec![true; nodes.len()];
+    for i in (0..nodes.len()).rev() {
+        path[i] &= children[i] <= 1;
+        if let Some(p) = nodes[i].parent {
+            path[p as usize] &= path[i];
+        }
+    }
+    let mut anchor: Vec<Option<glam::Vec3>> = vec![None; nodes.len()];
+    for i in 0..nodes.len() {
+        let Some(p) = nodes[i].parent.map(|p| p as usize) else {
+            continue;
+        };
+        anchor[i] = anchor[p].or((children[p] > 1 && path[i]).then_some(nodes[p].position));
+    }
+    for (n, a) in nodes.iter_mut().zip(anchor) {
+        if let Some(a) = a {
+            n.position = a + (n.position - a) * 0.05;
+        }
+    }
 }

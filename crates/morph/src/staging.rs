@@ -16,9 +16,22 @@ use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
     let moved = moves(plan, PACE_SAMPLES);
     if Pace::concentrated(&moved) {
-        return Pace::of_moves(&moves(plan, PACE_SAMPLES * Pace::REFINE), easing);
+        return refined_pace(plan, easing);
     }
     Pace::of_moves(&moved, easing)
+}
+
+/// [`pace`] without the refinement, and whether the motion is
+/// concentrated enough for [`pace`] to refine it ([`refined_pace`]):
+/// cheaper, for a plan that untangling may still change.
+pub(crate) fn coarse_pace(plan: &MorphPlan, easing: f32) -> (Option<Pace>, bool) {
+    let moved = moves(plan, PACE_SAMPLES);
+    (Pace::of_moves(&moved, easing), Pace::concentrated(&moved))
+}
+
+/// [`pace`] of a plan whose motion [`coarse_pace`] found concentrated.
+pub(crate) fn refined_pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
+    Pace::of_moves(&moves(plan, PACE_SAMPLES * Pace::REFINE), easing)
 }
 
 /// How far `plan`'s motion moves between its `samples` even instants

@@ -363,7 +363,11 @@ pub enum StreamPart {
 ///   up to 16 targets.
 /// - 11: a staged morph sheds and regrows the blends that still pass
 ///   through other branches (`treemorph_morph::MorphOptions::untangle`).
-pub const RENDER_VERSION: u32 = 11;
+/// - 12: untangling sweeps the motion between the instants it plays, paces
+///   each round anew, sheds until nothing crosses, and sheds no ancestor
+///   for a pair of which neither chain blends; a chain that fits inside
+///   its parent's tube mid-morph is not drawn.
+pub const RENDER_VERSION: u32 = 12;
 
 /// The instant of frame `i` of `frames` (both ends included): `i / (frames
 /// − 1)`, computed the one way every frame and every render on request

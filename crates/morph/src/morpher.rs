@@ -270,8 +270,10 @@ fn morph_chain(
             let (at, anchor) = junction(chain, u, inv_span, root, 0.0, done);
             let side = usize::from(chain.operation == Operation::Grow);
             let jr = chain.junction_radius[side];
+            // Where `junction` puts it: a growing or wilting chain's
+            // growth location does not move.
             let ball = inner
-                .then(|| enclosure(chain, (u, inv_span), chain.p[side], at, done))
+                .then(|| enclosure(chain, (u, inv_span), chain.p[0], at, done))
                 .flatten();
             // A wilting chain that a sibling's junction passes stands off
             // the axis on the reshape's clock, while the sibling moves.

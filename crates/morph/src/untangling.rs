@@ -28,7 +28,9 @@
 //! (the source keeps its other partners), for a merge copy only its
 //! source. The plan is then matched, built, paced and played again (a
 //! new partner can cross where the old one did not), until nothing is
-//! shed, for at most [`ROUNDS`] rounds.
+//! shed, for at most [`ROUNDS`] rounds: when they run out, the last plan
+//! is not played again, and what its new partners cross stays (the
+//! preset pairs never get there).
 //!
 //! Root chains are never taken out (a trunk that wilts while another grows
 //! is not a morph), and a pair of which neither chain blends (a growing or
@@ -238,11 +240,10 @@ mod tests {
         plan.chains.len() - plan.chains.iter().filter(shed).count()
     }
 
-    /// What it sheds is what crossed, not everything: on this pair, the
-    /// hardest of the presets, a third of the blends stay at 1,500
-    /// branches (at 5,000, where more twig clouds meet, a tenth here and
-    /// a sixth to a quarter on the other preset pairs), and the ends are
-    /// the inputs. (The crossings themselves are measured on written
+    /// What it sheds is what crossed, not everything: on this pair a third
+    /// of the blends stay at 1,500 branches (at 5,000, where more twig
+    /// clouds meet, an eighth to a quarter on the five preset pairs), and
+    /// the ends are the inputs. (The crossings themselves are measured on written
     /// frames in `treemorph_verify`'s `crossing_cost` tests.)
     #[test]
     fn untangling_keeps_a_share_of_the_blends_and_the_ends() {

@@ -22,7 +22,7 @@ fn measure(
     measure_at(a, b, size, options, 25)
 }
 
-/// [`measure`] on the frames of a job of `frames` frames.
+/// [`measure`] on the frames of a job of `frames` (at least 2) frames.
 fn measure_at(
     a: (Preset, u64),
     b: (Preset, u64),
@@ -30,6 +30,7 @@ fn measure_at(
     options: &MorphOptions,
     frames: u32,
 ) -> ((u32, u32), (u32, u32)) {
+    assert!(frames >= 2, "a job has at least its two ends");
     let tree = |(p, seed)| generate(&GenerateOptions::new(p, seed).with_size(size)).unwrap();
     let (s, t) = (tree(a), tree(b));
     let analyse = |x| Analysis::of(x, &AnalysisOptions::default()).unwrap();
@@ -47,23 +48,6 @@ fn measure_at(
             per_frame.iter().copied().max().unwrap_or(0),
         )
     };
-    if frames == 97 {
-        for i in 0..frames as usize {
-            for (x, y) in meter.crossing_pairs(i) {
-                let (cx, cy) = (&plan.chains()[x as usize], &plan.chains()[y as usize]);
-                eprintln!(
-                    "frame {i}: {x} {:?} l{} parent {:?} / {y} {:?} l{} parent {:?}",
-                    cx.operation, cx.level, cx.parent, cy.operation, cy.level, cy.parent
-                );
-                for c in [cx, cy] {
-                    if let Some(p) = c.parent {
-                        let pc = &plan.chains()[p as usize];
-                        eprintln!("   parent {p} {:?} parent {:?}", pc.operation, pc.parent);
-                    }
-                }
-            }
-        }
-    }
     let siblings = meter.sibling_crossings(&plan.topology().strand_parents());
     (
         sum_and_most(&meter.crossings()),
@@ -124,8 +108,9 @@ fn routing_round_siblings_lowers_their_crossings_in_the_written_frames() {
 
 /// Untangling on the five preset pairs at 1,500 branches: no crossing in
 /// any frame of jobs of 25 and of 97 frames (instants `i / 24` and
-/// `i / 96`: neither the planner's `k / 64` nor on its pace, which the
-/// last round changes), where the tangled plans have some in each.
+/// `i / 96` of the final pace, not the `k / 64` the planner plays, and on
+/// the final pace, which refines the rounds' coarse one where the motion
+/// is concentrated), where the tangled plans have some in each.
 #[test]
 fn untangling_sheds_the_crossings_of_the_written_frames() {
     let off = MorphOptions::default().with_untangle(false);

@@ -12,10 +12,11 @@
 //! shows, up to that bow.
 //!
 //! **How.** A capsule's gap to another, `g(s)` (segment distance less the
-//! two radii), changes with `s` at most as fast as the two segments' ends
-//! and radii move: the segments' points move linearly, so the distance
-//! between the segments is Lipschitz in `s` with the sum of the two
-//! largest end moves, and the radii add their changes. On an interval
+//! two radii), changes with `s` at most as fast as a point of one moves
+//! against a point of the other, plus the radii's changes: a point's move
+//! is a blend of its segment's two end moves, so the relative move is a
+//! blend of the four differences of end moves and no longer than the
+//! longest of them (`relative_rate`). On an interval
 //! whose ends have gaps `g₀`, `g₁`, the gap is therefore at least
 //! `(g₀ + g₁ − L·h) / 2`; where that is positive the pair cannot touch,
 //! elsewhere the interval is halved, down to 1/2^[`DEPTH`] of the step.
@@ -301,8 +302,8 @@ mod tests {
     }
 
     /// Proptest's view of the bound: whatever the motion, a pair found
-    /// touching at one of 64 even instants of the straight motion is a
-    /// passing pair.
+    /// touching at one of 65 even instants of the straight motion (ends
+    /// included) is a passing pair.
     mod sampled {
         use super::*;
         use proptest::prelude::*;

@@ -697,8 +697,8 @@ fn untangled(
 ) -> Result<MorphPlan, MorphError> {
     let easing = options.schedule.easing;
     let mut excluded = Excluded::default();
-    let (mut coarse, mut concentrated) = coarse_pace(&plan, easing);
-    plan.schedule.pace = coarse;
+    let mut concentrated;
+    (plan.schedule.pace, concentrated) = coarse_pace(&plan, easing);
     for _ in 0..crate::untangling::ROUNDS {
         let shed = crate::untangling::to_shed(&plan);
         if shed.is_empty() {
@@ -708,8 +708,7 @@ fn untangled(
             excluded.add(side, c, inputs[side].analysis.chains().len());
         }
         plan = plan_excluding(inputs, options, heights, &excluded)?;
-        (coarse, concentrated) = coarse_pace(&plan, easing);
-        plan.schedule.pace = coarse;
+        (plan.schedule.pace, concentrated) = coarse_pace(&plan, easing);
     }
     if concentrated {
         // The pace measures the motion as the plan plays it: unpaced.

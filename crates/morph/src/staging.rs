@@ -14,11 +14,10 @@ use treemorph_tree::timing::{Ease, Pace, RESHAPE, SHED, Window};
 /// resolve ([`Pace::concentrated`]) is measured again [`Pace::REFINE`]
 /// times as finely.
 pub(crate) fn pace(plan: &MorphPlan, easing: f32) -> Option<Pace> {
-    let moved = moves(plan, PACE_SAMPLES);
-    if Pace::concentrated(&moved) {
-        return refined_pace(plan, easing);
+    match coarse_pace(plan, easing) {
+        (_, true) => refined_pace(plan, easing),
+        (coarse, false) => coarse,
     }
-    Pace::of_moves(&moved, easing)
 }
 
 /// [`pace`] without the refinement, and whether the motion is

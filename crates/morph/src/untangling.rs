@@ -54,7 +54,7 @@
 //! - **65 instants, not fewer.** The sweep's cost is its broad phase, the
 //!   boxes of segments swept from one instant to the next: at 33 instants
 //!   the 20,000-branch plan took 2.0 s, at 17 6.6 s, against 1.6 s at 65
-//!   (then with three rounds on one pace), since each box grows with the
+//!   (then with two rounds on one pace), since each box grows with the
 //!   step. Padding static capsules by the motion instead shed nearly
 //!   every blend (12,267 pairs on the first round).
 //! - **Each round paced on its own motion.** On the first plan's pace,

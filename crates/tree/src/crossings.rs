@@ -293,7 +293,9 @@ mod tests {
         }
     }
 
-    fn frame(positions: Vec<Vec3>, radius: f32) -> Frame {
+    /// A frame of `positions`, every node of radius `radius` (also for
+    /// the `swept` tests).
+    pub(super) fn frame(positions: Vec<Vec3>, radius: f32) -> Frame {
         Frame {
             radii: vec![radius; positions.len()],
             positions,

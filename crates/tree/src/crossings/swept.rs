@@ -149,9 +149,12 @@ fn passing(p: &Swept, q: &Swept, known: &[(u32, u32)]) -> Option<(u32, u32)> {
     let shared = [p.nodes.0, p.nodes.1]
         .iter()
         .any(|n| *n == q.nodes.0 || *n == q.nodes.1);
+    if shared {
+        return None;
+    }
     let rate = relative_rate(p, q);
     // The cheap tests first: the list lookup misses the cache.
-    let near = !shared && !apart(p, q, 0, rate) && !apart(p, q, 1, rate);
+    let near = !apart(p, q, 0, rate) && !apart(p, q, 1, rate);
     (near && known.binary_search(&pair).is_err() && touch_in_step(p, q, rate)).then_some(pair)
 }
 
@@ -220,13 +223,7 @@ impl<G: Fn(f32) -> f32> Interval<'_, G> {
 mod tests {
     use super::*;
 
-    fn frame(positions: Vec<Vec3>, radius: f32) -> Frame {
-        Frame {
-            radii: vec![radius; positions.len()],
-            positions,
-            ..Frame::default()
-        }
-    }
+    use crate::crossings::tests::frame;
 
     /// A leaning stick whose tip swings from behind an upright one to in
     /// front of it: apart in both frames, through it in between.

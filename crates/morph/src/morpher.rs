@@ -118,37 +118,56 @@ pub(crate) fn arc_q(a: Quat, perp: Quat, angle: f32, w: f32) -> Quat {
     a * c + perp * s
 }
 
-/// The union parameter and world frame of a chain's junction at `w`: on
-/// the parent at the interpolated growth location, or the root.
+/// A chain's junction at some instant: where it is and its frame (on the
+/// parent at the interpolated growth location, or the root), and the ball
+/// about it that lies inside its ancestors' tubes ([`Seal`]) when asked
+/// for.
+struct Junction {
+    at: Vec3,
+    anchor: Quat,
+    ball: Option<Seal>,
+}
+
+/// The chain's [`Junction`] at `w`, with its ball when `sealing` (a root
+/// chain has none): the parent's radius there, or the ball the parent is
+/// sealed in when it is. One search for the parent's segment serves both.
 #[inline]
 fn junction(
     chain: &ChainPlan,
-    u: &[f32],
-    inv_span: &[f32],
+    (u, inv_span): (&[f32], &[f32]),
     root: Vec3,
     w: f32,
     done: Done,
-) -> (Vec3, Quat) {
+    sealing: bool,
+) -> Junction {
     if chain.parent == NONE {
-        return (root, Quat::IDENTITY);
+        return Junction {
+            at: root,
+            anchor: Quat::IDENTITY,
+            ball: None,
+        };
     }
     let p = chain.p[0] + (chain.p[1] - chain.p[0]) * w;
     let pf = chain.parent_first as usize;
     let pk = chain.parent_len as usize;
-    let pu = &u[pf..pf + pk];
+    let (pu, span) = (&u[pf..pf + pk], &inv_span[pf..pf + pk]);
     let [lo, hi] = chain.parent_segments;
-    point_frame(
-        pu,
-        &inv_span[pf..pf + pk],
-        &done.pos[1 + pf..1 + pf + pk],
-        &done.frames[pf..pf + pk],
-        segment(pu, p, lo as usize, hi as usize),
-        p,
-    )
+    let j = segment(pu, p, lo as usize, hi as usize);
+    let pos = &done.pos[1 + pf..1 + pf + pk];
+    let (at, anchor) = point_frame(pu, span, pos, &done.frames[pf..pf + pk], j, p);
+    let ball = sealing.then(|| {
+        let parent_sealed = done.seals[chain.parent as usize];
+        if parent_sealed.1 > 0.0 {
+            return parent_sealed;
+        }
+        let (r, f) = (&done.rad[1 + pf..1 + pf + pk], fraction(pu, span, j, p));
+        (at, r[j] + (r[j + 1] - r[j]) * f)
+    });
+    Junction { at, anchor, ball }
 }
 
 /// What the levels above a chain's wrote: positions and radii by node,
-/// frames and seals by sample.
+/// frames by sample, seals by union chain.
 #[derive(Clone, Copy)]
 struct Done<'a> {
     pos: &'a [Vec3],
@@ -157,43 +176,15 @@ struct Done<'a> {
     seals: &'a [Seal],
 }
 
-/// The ball a node lies sealed in, inside an ancestor's tube, when its
-/// chain is not drawn for that ([`undraw_if_sealed`]): centre and radius,
-/// radius 0 when it is not sealed.
+/// The ball a chain lies sealed in, inside an ancestor's tube, when it is
+/// not drawn for that ([`undraw_if_sealed`]): centre and radius, radius 0
+/// when it is not sealed.
 type Seal = (Vec3, f32);
 
-/// The ball about a chain's junction at union parameter `p` of its
-/// parent, centred at `centre` on the parent's axis, that lies inside its
-/// ancestors' tubes: the parent's radius there, or the ball the parent is
-/// sealed in when it is ([`Seal`]); `None` for a root chain.
-#[inline]
-fn enclosure(
-    chain: &ChainPlan,
-    (u, inv_span): (&[f32], &[f32]),
-    p: f32,
-    centre: Vec3,
-    done: Done,
-) -> Option<Seal> {
-    if chain.parent == NONE {
-        return None;
-    }
-    let (pf, pk) = (chain.parent_first as usize, chain.parent_len as usize);
-    let pu = &u[pf..pf + pk];
-    let [lo, hi] = chain.parent_segments;
-    let j = segment(pu, p, lo as usize, hi as usize);
-    let seal = done.seals[pf + j];
-    if seal.1 > 0.0 {
-        return Some(seal);
-    }
-    let f = fraction(pu, &inv_span[pf..pf + pk], j, p);
-    let r = &done.rad[1 + pf..1 + pf + pk];
-    Some((centre, r[j] + (r[j + 1] - r[j]) * f))
-}
-
 /// Undraws a chain (radius 0) whose tube lies inside `ball`, the ball
-/// about its junction inside its ancestors' tubes ([`enclosure`]), and
-/// marks its nodes sealed in it (so that its children are measured
-/// against the same ball); marks them unsealed otherwise. A twig retracted
+/// about its junction inside its ancestors' tubes ([`Junction`]), and
+/// marks it sealed in it (so that its children are measured against the
+/// same ball); marks it unsealed otherwise. A twig retracted
 /// into a thick limb, or a stub whose junction slides up a thick trunk,
 /// would otherwise be a tube sealed in the limb, where it passes through
 /// the stubs of its siblings and cousins and floats on no surface.
@@ -206,17 +197,17 @@ fn undraw_if_sealed(ball: Option<Seal>, out: ChainOut) {
         let mut nodes = pos.iter().zip(rad.iter());
         radius > 0.0 && nodes.all(|(p, r)| p.distance(centre) + r <= radius)
     });
-    match inside {
+    seals[0] = match inside {
         Some(ball) => {
             rad.fill(0.0);
-            seals.fill(ball);
+            ball
         }
-        None => seals.fill((Vec3::ZERO, 0.0)),
-    }
+        None => (Vec3::ZERO, 0.0),
+    };
 }
 
-/// The output slices of one chain: positions, radii, frames and seals of
-/// its nodes.
+/// The output slices of one chain (or of a run of chains): positions,
+/// radii and frames of its nodes, and its seal.
 struct ChainOut<'a> {
     pos: &'a mut [Vec3],
     rad: &'a mut [f32],
@@ -257,24 +248,25 @@ fn morph_chain(
     let own_u = &u[first..first + k];
     match state {
         ChainState::Blend(w) => {
-            let at = junction(chain, u, inv_span, root, w, done);
-            let p = chain.p[0] + (chain.p[1] - chain.p[0]) * w;
-            // The ends are the inputs', sealed stubs and all.
-            let ball = inner
-                .then(|| enclosure(chain, (u, inv_span), p, at.0, done))
-                .flatten();
-            blend_chain(chain, own, own_u, (slow_down, w), at, out.reborrow());
+            // The ends are the inputs', sealed stubs and all: sealing
+            // only `inner`.
+            let Junction { at, anchor, ball } =
+                junction(chain, (u, inv_span), root, w, done, inner);
+            blend_chain(
+                chain,
+                own,
+                own_u,
+                (slow_down, w),
+                (at, anchor),
+                out.reborrow(),
+            );
             undraw_if_sealed(ball, out);
         }
         ChainState::Reach(reach) => {
-            let (at, anchor) = junction(chain, u, inv_span, root, 0.0, done);
+            let Junction { at, anchor, ball } =
+                junction(chain, (u, inv_span), root, 0.0, done, inner);
             let side = usize::from(chain.operation == Operation::Grow);
             let jr = chain.junction_radius[side];
-            // Where `junction` puts it: a growing or wilting chain's
-            // growth location does not move.
-            let ball = inner
-                .then(|| enclosure(chain, (u, inv_span), chain.p[0], at, done))
-                .flatten();
             // A wilting chain that a sibling's junction passes stands off
             // the axis on the reshape's clock, while the sibling moves.
             let leaves = arc(own[0].dir, own[0].dir_perp, own[0].theta, side as f32);
@@ -460,7 +452,7 @@ fn morph_chains(
         let (pl, pr) = pos.split_at_mut(split);
         let (rl, rr) = rad.split_at_mut(split);
         let (fl, fr) = frames.split_at_mut(split);
-        let (sl, sr) = seals.split_at_mut(split);
+        let (sl, sr) = seals.split_at_mut(mid);
         let (left, right) = (&chains[..mid], &chains[mid..]);
         rayon::join(
             || {
@@ -502,7 +494,7 @@ fn morph_chains(
                 pos: &mut pos[off..off + k],
                 rad: &mut rad[off..off + k],
                 frames: &mut frames[off..off + k],
-                seals: &mut seals[off..off + k],
+                seals: std::slice::from_mut(&mut seals[i]),
             },
         );
     }
@@ -597,7 +589,7 @@ pub struct Morpher<'p> {
     plan: &'p MorphPlan,
     /// Frame (chain-local axes to world) of every union sample.
     frames: Vec<Quat>,
-    /// The ball every union sample lies sealed in, if any ([`Seal`]).
+    /// The ball every union chain lies sealed in, if any ([`Seal`]).
     seals: Vec<Seal>,
 }
 
@@ -607,7 +599,7 @@ impl<'p> Morpher<'p> {
         Morpher {
             plan,
             frames: vec![Quat::IDENTITY; plan.sample_u.len()],
-            seals: vec![(Vec3::ZERO, 0.0); plan.sample_u.len()],
+            seals: vec![(Vec3::ZERO, 0.0); plan.chain_plans.len()],
         }
     }
 
@@ -635,7 +627,8 @@ impl<'p> Morpher<'p> {
                     ChainState::Blend(w) => w,
                     ChainState::Reach(_) => 0.0,
                 };
-                junction(c, u, inv_span, root, w, done)
+                let j = junction(c, (u, inv_span), root, w, done, false);
+                (j.at, j.anchor)
             })
             .collect()
     }
@@ -673,7 +666,7 @@ impl<'p> Morpher<'p> {
             let (done_pos, rest_pos) = frame.positions.split_at_mut(1 + a);
             let (done_rad, rest_rad) = frame.radii.split_at_mut(1 + a);
             let (done_frames, rest_frames) = self.frames.split_at_mut(a);
-            let (done_seals, rest_seals) = self.seals.split_at_mut(a);
+            let (done_seals, rest_seals) = self.seals.split_at_mut(level.start as usize);
             let done = Done {
                 pos: done_pos,
                 rad: done_rad,
@@ -684,7 +677,7 @@ impl<'p> Morpher<'p> {
                 pos: &mut rest_pos[..b - a],
                 rad: &mut rest_rad[..b - a],
                 frames: &mut rest_frames[..b - a],
-                seals: &mut rest_seals[..b - a],
+                seals: &mut rest_seals[..chains.len()],
             };
             let index = level.start as usize;
             morph_chains(plan, chains, index, a, t, done, out, parallel);
